@@ -1,0 +1,1 @@
+"""Episode store, catalog, video I/O, collection, training views, import and export."""

@@ -1,0 +1,1 @@
+"""OSVI-WM: encoder, action and world models, waypoint head, losses, training, planning, latent decoder."""

@@ -1,0 +1,1 @@
+"""Simulation core: scenes, robots, tasks, cameras, teleop IK, waypoint controller, scripted experts."""

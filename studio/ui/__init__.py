@@ -1,0 +1,1 @@
+"""The viser browser app: panels, scene mirroring, teleop, imitation and the rollout inspector."""
