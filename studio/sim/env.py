@@ -1,0 +1,245 @@
+"""The simulation environment: reset a task by seed, step with an end-effector target, render, read state.
+
+:class:`SimEnv` is the one API every other part of the studio uses for physics — scripted collection,
+browser teleop, the waypoint controller and rollouts. One control tick (:meth:`SimEnv.step`) runs the
+arm controller (IK or mocap) once and then ``n_substeps`` physics steps.
+
+Observation cameras render with shadows, reflections and multisampling off, which is 20–40× faster
+than MuJoCo's defaults on a CPU.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import weakref
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco
+import numpy as np
+
+from studio.sim import robots, scenes
+from studio.sim.camera import CameraModel
+from studio.sim.ik import make_controller
+from studio.sim.tasks import Task, get_task
+
+#: Where targets are clamped to: (min, max) per world axis of the grasp site, metres.
+WORKSPACE = np.array([[-0.45, 0.12, 0.012], [0.45, 0.95, 0.55]])
+
+# Finger bodies whose contacts define "holding an object".
+_FINGER_BODIES = {
+    "panda": ("panda0_leftfinger", "panda0_rightfinger"),
+    "sawyer": ("rightpad", "leftpad"),
+}
+
+
+_LIVE_ENVS: weakref.WeakSet = weakref.WeakSet()
+_CLEANUP_REGISTERED = False
+
+
+def _close_all() -> None:
+    # Free GL contexts before MuJoCo's own exit hook tears the EGL display down.
+    for env in list(_LIVE_ENVS):
+        env.close()
+
+
+def _register_cleanup() -> None:
+    # atexit runs hooks last-in first-out: registering after MuJoCo created its display (at the first
+    # renderer) makes ours run before MuJoCo's display teardown.
+    global _CLEANUP_REGISTERED
+    if not _CLEANUP_REGISTERED:
+        atexit.register(_close_all)
+        _CLEANUP_REGISTERED = True
+
+
+class SimEnv:
+    """A tabletop scene with one robot.
+
+    Args:
+        scene: ``"pick_place"`` or ``"push"``.
+        robot: ``"panda"`` or ``"sawyer"``.
+        image_size: (height, width) of the external camera's images.
+        control_dt: seconds per control tick (one :meth:`step`).
+        depth_size: (height, width) of the wrist depth camera.
+    """
+
+    def __init__(self, scene: str, robot: str, *, image_size: tuple[int, int] = (240, 320),
+                 control_dt: float = 0.02, depth_size: tuple[int, int] = (64, 64)):
+        self.scene_info = scenes.scene_info(scene)
+        self.robot_info = robots.robot_info(robot)
+        self.scene, self.robot = scene, robot
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        self.depth_size = depth_size
+        self.model = scenes.build_model(scene, robot)
+        self.data = mujoco.MjData(self.model)
+        self.n_substeps = max(1, round(control_dt / self.model.opt.timestep))
+        self.control_dt = self.n_substeps * self.model.opt.timestep
+        self.controller = make_controller(robot, self.model)
+        m = self.model
+        self._site = m.site(self.robot_info.grasp_site).id
+        self._finger_qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in self.robot_info.finger_joints])
+        self._finger_act = np.array([m.actuator(a).id for a in self.robot_info.finger_actuators])
+        arm_and_fingers = self.robot_info.arm_joints + self.robot_info.finger_joints
+        self._robot_qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in arm_and_fingers])
+        self._obj_qadr = {o: m.jnt_qposadr[m.joint(f"obj_{o}").id] for o in self.scene_info.objects}
+        self._obj_body = {m.body(f"obj_{o}").id: o for o in self.scene_info.objects}
+        self._finger_bodies = {m.body(b).id for b in _FINGER_BODIES[robot]}
+        self._renderers: dict[tuple[int, int, bool], mujoco.Renderer] = {}
+        # Observation cameras show what a real camera would: no sites, no collision-only geoms.
+        self._vis = mujoco.MjvOption()
+        self._vis.sitegroup[:] = 0
+        self._vis.geomgroup[3:] = 0
+        self.task: Task | None = None
+        self.seed: int | None = None
+        self.layout: scenes.Layout | None = None
+        self.initial_objects: dict[str, np.ndarray] = {}
+        self.gripper_cmd = 0.0
+        self.target = np.zeros(3)
+        self.steps = 0
+        _LIVE_ENVS.add(self)
+
+    # ------------------------------------------------------------------ episode
+    def reset(self, task: str | Task, seed: int) -> None:
+        """Start an episode of ``task`` from the initial state drawn with ``seed``."""
+        task = get_task(task) if isinstance(task, str) else task
+        if task.scene != self.scene:
+            raise ValueError(f"task {task.name!r} belongs to scene {task.scene!r}, this env is {self.scene!r}")
+        self.task, self.seed = task, int(seed)
+        self.layout = task.sample_layout(self.seed)
+        m, d = self.model, self.data
+        for name, xy in self.layout.target_pos.items():
+            m.body(f"target_{name}").pos[:2] = xy
+        mujoco.mj_resetData(m, d)
+        for name, pos in self.layout.object_pos.items():
+            a = self._obj_qadr[name]
+            yaw = self.layout.object_yaw.get(name, 0.0)
+            d.qpos[a : a + 3] = pos
+            d.qpos[a + 3 : a + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+        self.controller.reset(d)
+        self.gripper_cmd = 0.0
+        d.ctrl[self._finger_act] = self.robot_info.finger_ctrl(0.0)
+        if self.robot == "panda":  # start with the fingers fully open, as the open command asks
+            d.qpos[self._finger_qadr] = 0.04
+        mujoco.mj_forward(m, d)
+        # Let the objects and the welded hand settle before the episode starts.
+        for _ in range(100):
+            mujoco.mj_step(m, d)
+        d.time = 0.0
+        self.steps = 0
+        self.target = self.ee_pos.copy()
+        self.initial_objects = {o: p[:3].copy() for o, p in self.object_poses().items()}
+
+    def step(self, target_pos: np.ndarray, gripper: float) -> None:
+        """One control tick: move the grasp site towards ``target_pos`` (clamped to the workspace) with
+        the gripper commanded to ``gripper`` (0 open … 1 closed)."""
+        if self.task is None:
+            raise RuntimeError("SimEnv.step called before reset()")
+        target = np.asarray(target_pos, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(target)):
+            target = self.target  # ignore a non-finite command, keep the last good one
+        self.target = np.clip(target, WORKSPACE[0], WORKSPACE[1])
+        g = float(gripper) if np.isfinite(gripper) else self.gripper_cmd
+        self.gripper_cmd = float(np.clip(g, 0.0, 1.0))
+        self.controller.command(self.data, self.target, self.control_dt)
+        self.data.ctrl[self._finger_act] = self.robot_info.finger_ctrl(self.gripper_cmd)
+        mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
+        self.steps += 1
+
+    # ------------------------------------------------------------------ state
+    @property
+    def ee_pos(self) -> np.ndarray:
+        return self.data.site_xpos[self._site].copy()
+
+    def gripper_opening(self) -> float:
+        q = self.data.qpos[self._finger_qadr]
+        if self.robot == "panda":
+            return float(q[0] + q[1])
+        return float(0.088 + q[1] - q[0])
+
+    def object_poses(self) -> dict[str, np.ndarray]:
+        """Object name -> (7,) position and quaternion (w, x, y, z) in the world."""
+        return {o: self.data.qpos[a : a + 7].copy() for o, a in self._obj_qadr.items()}
+
+    def held_object(self) -> str | None:
+        """The object both fingers touch, if any."""
+        touching: dict[str, set[int]] = {}
+        d = self.data
+        for i in range(d.ncon):
+            c = d.contact[i]
+            b1 = self.model.geom_bodyid[c.geom1]
+            b2 = self.model.geom_bodyid[c.geom2]
+            for finger, other in ((b1, b2), (b2, b1)):
+                if finger in self._finger_bodies and other in self._obj_body:
+                    touching.setdefault(self._obj_body[other], set()).add(finger)
+        for name, fingers in touching.items():
+            if len(fingers) == 2:
+                return name
+        return None
+
+    def stages(self) -> dict[str, bool]:
+        """The task's breakdown now: reached, grasped, placed."""
+        objects = {o: p[:3] for o, p in self.object_poses().items()}
+        return self.task.stages(objects, self.initial_objects, self.layout, self.ee_pos, self.held_object())
+
+    def success(self) -> bool:
+        return self.stages()["placed"]
+
+    def camera_model(self, camera: str = "external", size: tuple[int, int] | None = None) -> CameraModel:
+        h, w = size or (self.image_size if camera == "external" else self.depth_size)
+        return CameraModel.from_mujoco(self.model, self.data, camera, w, h)
+
+    def state(self) -> dict[str, np.ndarray | float]:
+        """One step's worth of the arrays a recording holds (see :data:`studio.sim.recording.ARRAY_FIELDS`)."""
+        ee = self.ee_pos
+        cam = self.camera_model("external")
+        poses = self.object_poses()
+        return {
+            "time": float(self.data.time),
+            "qpos": self.data.qpos[self._robot_qadr].copy(),
+            "ee_pos_world": ee,
+            "ee_pos_cam": cam.world_to_cam(ee),
+            "gripper_cmd": self.gripper_cmd,
+            "gripper_opening": self.gripper_opening(),
+            "object_poses": np.stack([poses[o] for o in self.scene_info.objects]),
+        }
+
+    # ------------------------------------------------------------------ rendering
+    def _renderer(self, height: int, width: int, depth: bool) -> mujoco.Renderer:
+        key = (height, width, depth)
+        r = self._renderers.get(key)
+        if r is None:
+            r = mujoco.Renderer(self.model, height, width)
+            if depth:
+                r.enable_depth_rendering()
+            r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+            r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+            r.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = False
+            self._renderers[key] = r
+            _register_cleanup()
+        return r
+
+    def render(self, camera: str = "external", size: tuple[int, int] | None = None) -> np.ndarray:
+        """RGB image (H, W, 3) uint8 from a named camera."""
+        h, w = size or (self.image_size if camera == "external" else self.depth_size)
+        r = self._renderer(h, w, False)
+        r.update_scene(self.data, camera=camera, scene_option=self._vis)
+        return r.render().copy()
+
+    def render_depth(self, camera: str = "wrist", size: tuple[int, int] | None = None) -> np.ndarray:
+        """Depth image (H, W) float32, metres along the camera's optical axis."""
+        h, w = size or (self.depth_size if camera != "external" else self.image_size)
+        r = self._renderer(h, w, True)
+        r.update_scene(self.data, camera=camera, scene_option=self._vis)
+        return r.render().astype(np.float32)
+
+    def close(self) -> None:
+        for r in self._renderers.values():
+            r.close()
+        self._renderers.clear()
+
+    def __enter__(self) -> SimEnv:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,63 @@
+"""Records an episode while it runs and renders its frames afterwards.
+
+Every control tick the recorder keeps the dataset arrays (:meth:`studio.sim.env.SimEnv.state`) and
+MuJoCo's compact physics state. Frames are rendered only at the end, at evenly spaced ticks, by
+restoring those states — so an episode costs the renders it stores and no more, whatever its length.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from studio.sim.env import SimEnv
+from studio.sim.recording import Recording
+
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+class Recorder:
+    """Collects one episode of ``env``; call :meth:`tick` after reset and after every step."""
+
+    def __init__(self, env: SimEnv):
+        self.env = env
+        self.rows: list[dict] = []
+        self.states: list[np.ndarray] = []
+        self._size = mujoco.mj_stateSize(env.model, _STATE)
+
+    def tick(self) -> None:
+        self.rows.append(self.env.state())
+        s = np.empty(self._size)
+        mujoco.mj_getState(self.env.model, self.env.data, s, _STATE)
+        self.states.append(s)
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def frame_steps(self, n_frames: int) -> np.ndarray:
+        """Evenly spaced tick indices, first and last included (all ticks if there are fewer)."""
+        n = len(self.rows)
+        if n == 0:
+            raise ValueError("nothing recorded: call Recorder.tick() after reset and each step")
+        return np.unique(np.round(np.linspace(0, n - 1, min(n_frames, n))).astype(np.int64))
+
+    def finish(self, n_frames: int = 30, success: bool | None = None) -> Recording:
+        """Render the frames and return the :class:`Recording`. The env's current state is kept."""
+        env = self.env
+        keep = np.empty(self._size)
+        mujoco.mj_getState(env.model, env.data, keep, _STATE)
+        steps = self.frame_steps(n_frames)
+        frames = []
+        for i in steps:
+            mujoco.mj_setState(env.model, env.data, self.states[i], _STATE)
+            mujoco.mj_forward(env.model, env.data)
+            frames.append(env.render("external"))
+        mujoco.mj_setState(env.model, env.data, keep, _STATE)
+        mujoco.mj_forward(env.model, env.data)
+        arrays = {k: np.stack([np.asarray(r[k], dtype=np.float64) for r in self.rows]) for k in self.rows[0]}
+        return Recording(
+            scene=env.scene, robot=env.robot, task=env.task.name, seed=int(env.seed),
+            success=bool(env.success() if success is None else success),
+            camera=env.camera_model("external"), frames=np.stack(frames), frame_steps=steps,
+            arrays=arrays, object_names=list(env.scene_info.objects), control_dt=env.control_dt,
+        )
