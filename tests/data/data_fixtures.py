@@ -75,3 +75,15 @@ def make_recording(
         object_names=["cube", "cylinder"],
         control_dt=dt,
     )
+
+
+def flaky_recorder(scene, robot, task, seed, image_size=(48, 64), min_frames=20):
+    """A stand-in for ``record_expert`` whose episodes fail for one seed in three (by seed)."""
+    return make_recording(
+        task=task,
+        robot=robot,
+        seed=seed,
+        size=tuple(image_size),
+        num_frames=min_frames,
+        success=seed % 3 != 0,
+    )

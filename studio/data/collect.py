@@ -1,0 +1,306 @@
+"""Scripted collection in bulk: ``studio collect`` runs the scripted experts in parallel into the store.
+
+A collection run is the set of slots (task, index) for index < ``--episodes``, for one robot and one base
+seed. Each slot's seed is derived from (base seed, robot, task, index, attempt) by hashing, so a run is
+deterministic whatever the number of workers or the order they finish in, and an interrupted run resumes
+by making only the slots the catalog does not have yet. Failed scripted episodes are not kept: a slot is
+retried with the next attempt's seed, up to ``--max-attempts`` times, and the failures are counted.
+
+The robot decides the role: the Sawyer demonstrates (``expert``) and the Panda imitates (``agent``).
+Frames are rendered only for the stored frames (``--min-frames``, ≥ 20), arrays at the full control rate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import importlib
+import inspect
+import multiprocessing as mp
+import os
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+from studio.data.paths import add_data_dir_argument
+from studio.data.store import EpisodeStore, StoreError
+
+# Headless rendering; must be set before anything imports mujoco (studio.sim.tasks does, via its scenes).
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+ROLE_OF_ROBOT = {"sawyer": "expert", "panda": "agent"}
+DEFAULT_RECORDER = "studio.sim.experts:record_expert"
+MIN_FRAMES = 20
+
+
+@dataclass
+class CollectConfig:
+    """One collection run.
+
+    Attributes:
+        tasks: full task names, or ``["all"]`` / ``["train"]`` / ``["test"]`` for the scene's tasks or its split.
+        recorder: ``"module:function"`` with the signature of :func:`studio.sim.experts.record_expert`.
+    """
+
+    scene: str = "pick_place"
+    robot: str = "sawyer"
+    tasks: list[str] = field(default_factory=lambda: ["all"])
+    episodes: int = 100
+    workers: int = 1
+    seed: int = 0
+    image_size: tuple[int, int] = (240, 320)
+    min_frames: int = 20
+    max_attempts: int = 5
+    data_dir: str | None = None
+    recorder: str = DEFAULT_RECORDER
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.robot not in ROLE_OF_ROBOT:
+            raise ValueError(f"robot must be one of {sorted(ROLE_OF_ROBOT)}, got {self.robot!r}")
+        if self.episodes < 1 or self.workers < 1 or self.max_attempts < 1:
+            raise ValueError("episodes, workers and max_attempts must be at least 1")
+        if self.min_frames < MIN_FRAMES:
+            raise ValueError(f"episodes store at least {MIN_FRAMES} frames, got min_frames={self.min_frames}")
+
+
+@dataclass
+class CollectResult:
+    """What a collection run did. ``missing`` slots failed every attempt (or raised) and are still empty."""
+
+    requested: int
+    already_present: int
+    made: int
+    failed_attempts: int
+    missing: list[tuple[str, int]]
+    errors: list[str]
+    seconds: float
+
+    @property
+    def episodes_per_min(self) -> float:
+        return 60.0 * self.made / self.seconds if self.seconds > 0 else 0.0
+
+    def summary(self) -> str:
+        text = (
+            f"collected {self.made} episodes in {self.seconds:.1f} s ({self.episodes_per_min:.1f}/min); "
+            f"{self.already_present} were already present; {self.failed_attempts} scripted attempts failed "
+            f"and were discarded"
+        )
+        if self.missing:
+            text += f"; {len(self.missing)} slots still missing (run again to retry)"
+        return text
+
+
+def episode_seed(base_seed: int, robot: str, task: str, index: int, attempt: int = 0) -> int:
+    """The scene seed of one slot and attempt (31-bit, stable across processes and Python versions)."""
+    digest = hashlib.sha256(f"{base_seed}|{robot}|{task}|{index}|{attempt}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") & 0x7FFFFFFF
+
+
+def resolve_tasks(scene: str, names: list[str]) -> list[str]:
+    """Expand ``all`` / ``train`` / ``test`` and check every name against the scene's task list."""
+    from studio.data.splits import load_split
+    from studio.sim.tasks import list_tasks
+
+    known = list_tasks(scene)
+    if not known:
+        raise ValueError(f"scene {scene!r} has no tasks")
+    out: list[str] = []
+    for name in names:
+        if name == "all":
+            out.extend(known)
+        elif name in ("train", "test"):
+            out.extend(load_split(scene).tasks(name))
+        elif name in known:
+            out.append(name)
+        else:
+            raise ValueError(f"unknown task {name!r} for scene {scene!r}; known: {', '.join(known)}")
+    return list(dict.fromkeys(out))
+
+
+def missing_slots(store: EpisodeStore, cfg: CollectConfig, tasks: list[str]) -> list[tuple[str, int]]:
+    """Slots of the run without an episode in the catalog, task by task, index by index."""
+    out = []
+    for task in tasks:
+        have = store.catalog.filled_slots(task, cfg.robot, cfg.seed)
+        out.extend((task, i) for i in range(cfg.episodes) if i not in have)
+    return out
+
+
+def _load_recorder(spec: str) -> Callable:
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+# ---------------------------------------------------------------------- worker side
+_WORKER: dict = {}
+
+
+def _init_worker(cfg_dict: dict) -> None:
+    cfg = CollectConfig(**cfg_dict)
+    recorder = _load_recorder(cfg.recorder)
+    env = None
+    if "env" in inspect.signature(recorder).parameters:
+        from studio.sim.env import SimEnv
+
+        env = SimEnv(cfg.scene, cfg.robot, image_size=tuple(cfg.image_size))
+    _WORKER.update(cfg=cfg, recorder=recorder, env=env, store=EpisodeStore(cfg.data_dir))
+
+
+def _make_slot(slot: tuple[str, int]) -> tuple[str, int, bool, int, str | None]:
+    """Fill one slot: (task, index, stored, failed attempts, error message or None)."""
+    cfg: CollectConfig = _WORKER["cfg"]
+    task, index = slot
+    failures = 0
+    kwargs = {"image_size": tuple(cfg.image_size), "min_frames": cfg.min_frames}
+    if _WORKER["env"] is not None:
+        kwargs["env"] = _WORKER["env"]
+    try:
+        for attempt in range(cfg.max_attempts):
+            seed = episode_seed(cfg.seed, cfg.robot, task, index, attempt)
+            rec = _WORKER["recorder"](cfg.scene, cfg.robot, task, seed, **kwargs)
+            if not rec.success:
+                failures += 1
+                continue
+            try:
+                _WORKER["store"].add_episode(
+                    rec,
+                    role=ROLE_OF_ROBOT[cfg.robot],
+                    source="scripted",
+                    collect_seed=cfg.seed,
+                    collect_index=index,
+                    extra={"attempt": attempt},
+                )
+            except StoreError as e:
+                if index in _WORKER["store"].catalog.filled_slots(task, cfg.robot, cfg.seed):
+                    return task, index, True, failures, None  # another collector filled it meanwhile
+                raise e
+            return task, index, True, failures, None
+        return task, index, False, failures, None
+    except Exception as e:
+        last = traceback.format_exception_only(type(e), e)[-1].strip()
+        return task, index, False, failures, f"{task} #{index}: {last}"
+
+
+def _close_worker() -> None:
+    if _WORKER.get("env") is not None:
+        _WORKER["env"].close()
+    if _WORKER.get("store") is not None:
+        _WORKER["store"].close()
+    _WORKER.clear()
+
+
+# ---------------------------------------------------------------------- driver
+def collect(cfg: CollectConfig) -> CollectResult:
+    """Run (or resume) a collection; returns what was done."""
+    from tqdm import tqdm
+
+    tasks = resolve_tasks(cfg.scene, cfg.tasks)
+    store = EpisodeStore(cfg.data_dir)
+    report = store.check()
+    if not report.ok:
+        print(report.summary(), file=sys.stderr)
+    todo = missing_slots(store, cfg, tasks)
+    requested = len(tasks) * cfg.episodes
+    made, failed_attempts, missing, errors = 0, 0, [], []
+    start = time.perf_counter()
+    bar = tqdm(
+        total=len(todo),
+        desc=f"collect {cfg.scene} {cfg.robot}",
+        unit="ep",
+        disable=not cfg.progress,
+        dynamic_ncols=True,
+    )
+    cfg_dict = asdict(cfg)
+    cfg_dict["progress"] = False
+    try:
+        if cfg.workers == 1 or len(todo) <= 1:
+            _init_worker(cfg_dict)
+            try:
+                results = (_make_slot(s) for s in todo)
+                for res in results:
+                    made, failed_attempts = _account(res, made, failed_attempts, missing, errors, bar)
+            finally:
+                _close_worker()
+        else:
+            ctx = mp.get_context("spawn")
+            with ctx.Pool(
+                min(cfg.workers, len(todo)), initializer=_init_worker, initargs=(cfg_dict,)
+            ) as pool:
+                for res in pool.imap_unordered(_make_slot, todo):
+                    made, failed_attempts = _account(res, made, failed_attempts, missing, errors, bar)
+    finally:
+        bar.close()
+        store.close()
+    return CollectResult(
+        requested=requested,
+        already_present=requested - len(todo),
+        made=made,
+        failed_attempts=failed_attempts,
+        missing=sorted(missing),
+        errors=errors,
+        seconds=time.perf_counter() - start,
+    )
+
+
+def _account(res, made, failed_attempts, missing, errors, bar) -> tuple[int, int]:
+    task, index, ok, failures, error = res
+    failed_attempts += failures
+    if ok:
+        made += 1
+    else:
+        missing.append((task, index))
+    if error:
+        errors.append(error)
+    bar.update(1)
+    bar.set_postfix(failed=failed_attempts, refresh=False)
+    return made, failed_attempts
+
+
+# ---------------------------------------------------------------------- CLI
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scene", default="pick_place", help="scene family (pick_place, push)")
+    parser.add_argument(
+        "--robot", required=True, choices=sorted(ROLE_OF_ROBOT), help="sawyer = expert, panda = agent"
+    )
+    parser.add_argument(
+        "--tasks",
+        nargs="+",
+        default=["all"],
+        help="'all', 'train', 'test' or task names, e.g. 'pick_place/cube->red'",
+    )
+    parser.add_argument("--episodes", type=int, default=100, help="episodes per task")
+    parser.add_argument("--workers", type=int, default=1, help="parallel worker processes")
+    parser.add_argument("--seed", type=int, default=0, help="base seed of the run")
+    parser.add_argument("--image-size", type=int, nargs=2, default=(240, 320), metavar=("H", "W"))
+    parser.add_argument("--min-frames", type=int, default=20, help="frames stored per episode")
+    parser.add_argument("--max-attempts", type=int, default=5, help="tries per slot before giving up")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_data_dir_argument(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = CollectConfig(
+        scene=args.scene,
+        robot=args.robot,
+        tasks=list(args.tasks),
+        episodes=args.episodes,
+        workers=args.workers,
+        seed=args.seed,
+        image_size=tuple(args.image_size),
+        min_frames=args.min_frames,
+        max_attempts=args.max_attempts,
+        data_dir=args.data_dir,
+        progress=not args.no_progress,
+    )
+    try:
+        result = collect(cfg)
+    except ValueError as e:
+        print(f"studio collect: {e}", file=sys.stderr)
+        return 2
+    print(result.summary())
+    for err in result.errors[:10]:
+        print(f"  error: {err}", file=sys.stderr)
+    return 0 if not result.missing else 1

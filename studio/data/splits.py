@@ -1,0 +1,94 @@
+"""Train / validation / test splits: which tasks are trained on, which are held out, and validation episodes.
+
+Splits are by task (the method imitates *unseen* tasks): ``studio/splits/<scene>.json`` lists the training
+tasks and the held-out test tasks of a scene. Validation uses held-out *episodes of the training tasks*
+(a fixed fraction per task and role), so model selection never looks at the test tasks. Which episodes
+are held out is decided by a hash of the episode id: stable across runs and machines, independent of
+insertion order.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterable
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+SPLITS = ("train", "val", "test")
+
+
+@dataclass(frozen=True)
+class SplitSpec:
+    """A scene's task split. ``val_fraction`` of each training task's episodes form the validation set."""
+
+    scene: str
+    train: tuple[str, ...]
+    test: tuple[str, ...]
+    val_fraction: float = 0.1
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        overlap = set(self.train) & set(self.test)
+        if overlap:
+            raise ValueError(f"split {self.scene!r}: tasks both in train and test: {sorted(overlap)}")
+        if not 0.0 <= self.val_fraction < 1.0:
+            raise ValueError(f"split {self.scene!r}: val_fraction must be in [0, 1), got {self.val_fraction}")
+        if not self.train:
+            raise ValueError(f"split {self.scene!r} has no training tasks")
+
+    def tasks(self, split: str) -> tuple[str, ...]:
+        """The tasks a split draws from: training tasks for ``train`` and ``val``, held-out ones for ``test``."""
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        return self.test if split == "test" else self.train
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SplitSpec:
+        return cls(
+            scene=d["scene"],
+            train=tuple(d["train"]),
+            test=tuple(d.get("test", ())),
+            val_fraction=float(d.get("val_fraction", 0.1)),
+            description=d.get("description", ""),
+        )
+
+
+def _splits_dir():
+    return resources.files("studio") / "splits"
+
+
+def available_splits() -> list[str]:
+    """Scenes with a split file shipped in ``studio/splits``."""
+    return sorted(p.name[: -len(".json")] for p in _splits_dir().iterdir() if p.name.endswith(".json"))
+
+
+def load_split(scene_or_path: str | Path) -> SplitSpec:
+    """The split of a scene (``"pick_place"``), or of a JSON file given by path."""
+    p = Path(scene_or_path)
+    if p.suffix == ".json":
+        return SplitSpec.from_dict(json.loads(p.read_text()))
+    name = str(scene_or_path)
+    ref = _splits_dir() / f"{name}.json"
+    if not ref.is_file():
+        raise ValueError(f"no split file for scene {name!r}; available: {available_splits()}")
+    return SplitSpec.from_dict(json.loads(ref.read_text()))
+
+
+def _rank_key(episode_id: str) -> str:
+    return hashlib.sha1(episode_id.encode()).hexdigest()
+
+
+def validation_ids(episode_ids: Iterable[str], fraction: float) -> set[str]:
+    """The ids held out for validation among one task's episodes of one role.
+
+    ``round(fraction * n)`` episodes, at least one when ``fraction > 0`` and there are two or more, and
+    never all of them; the ones with the smallest id hashes.
+    """
+    ids = sorted(set(episode_ids), key=_rank_key)
+    n = len(ids)
+    if fraction <= 0 or n < 2:
+        return set()
+    k = min(max(1, round(fraction * n)), n - 1)
+    return set(ids[:k])
