@@ -1,0 +1,49 @@
+"""Split files: the shipped task splits, validation hold-out, malformed specs."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from studio.data.splits import SplitSpec, available_splits, load_split, validation_ids
+from studio.sim.tasks import list_tasks
+
+
+def test_pick_place_split_follows_paper():
+    spec = load_split("pick_place")
+    assert len(spec.train) == 14
+    assert spec.test == ("pick_place/bar->blue", "pick_place/bar->yellow")
+    assert sorted(spec.train + spec.test) == sorted(list_tasks("pick_place"))
+    assert spec.tasks("val") == spec.train
+
+
+def test_push_split():
+    spec = load_split("push")
+    assert len(spec.train) == 3 and spec.test == ("push/blue-backward",)
+    assert sorted(spec.train + spec.test) == sorted(list_tasks("push"))
+    assert available_splits() == ["pick_place", "push"]
+
+
+def test_split_from_file_and_errors(tmp_path):
+    path = tmp_path / "mine.json"
+    path.write_text(json.dumps({"scene": "pick_place", "train": ["pick_place/cube->red"], "test": []}))
+    assert load_split(path).train == ("pick_place/cube->red",)
+    with pytest.raises(ValueError, match="both in train and test"):
+        SplitSpec("x", train=("a/b",), test=("a/b",))
+    with pytest.raises(ValueError, match="no split file"):
+        load_split("kitchen")
+    with pytest.raises(ValueError, match="split must be"):
+        load_split("push").tasks("holdout")
+
+
+def test_validation_ids_stable_fraction():
+    ids = [f"ep{i}" for i in range(40)]
+    held = validation_ids(ids, 0.1)
+    assert len(held) == 4 and held <= set(ids)
+    assert validation_ids(reversed(ids), 0.1) == held  # independent of order
+    grown = validation_ids([*ids, *(f"new{i}" for i in range(10))], 0.1)
+    assert len(grown) == 5
+    assert validation_ids(["a"], 0.5) == set()
+    assert len(validation_ids(["a", "b"], 0.9)) == 1  # never all of them
+    assert validation_ids(ids, 0.0) == set()
