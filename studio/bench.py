@@ -25,6 +25,7 @@ def run(args: argparse.Namespace) -> int:
     module.add_arguments(sub)
     sub_args = sub.parse_args([a for a in args.rest if a != "--json"])
     result = module.measure(sub_args)
-    text = json.dumps(result, indent=None if args.json else 2, sort_keys=True)
+    compact = args.json or "--json" in args.rest
+    text = json.dumps(result, indent=None if compact else 2, sort_keys=True)
     sys.stdout.write(text + "\n")
     return 0

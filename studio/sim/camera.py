@@ -116,7 +116,7 @@ class CameraModel:
         """Back-project pixels at the given depth (camera z, metres) to camera-frame points."""
         uv = np.asarray(uv, dtype=np.float64)
         z = np.asarray(depth, dtype=np.float64)
-        ones = np.ones(uv.shape[:-1] + (1,))
+        ones = np.ones((*uv.shape[:-1], 1))
         rays = np.concatenate([uv, ones], axis=-1) @ np.linalg.inv(self.K).T
         return rays * z[..., None] if z.ndim == uv.ndim - 1 else rays * z
 

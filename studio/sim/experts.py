@@ -19,8 +19,8 @@ from studio.sim.waypoints import ControllerConfig, WaypointController
 
 LIFT_Z = 0.15
 PUSH_Z = 0.03
-PUSH_BEHIND = 0.065  # grasp site distance from the box centre when starting a push
-PUSH_THROUGH = 0.15  # how far the box is pushed
+PUSH_BEHIND = 0.09  # grasp site distance from the box centre when starting a push (open fingers clear it)
+PUSH_THROUGH = 0.18  # where the grasp site ends, beyond the box centre
 
 
 def expert_waypoints(env: SimEnv) -> np.ndarray:

@@ -26,7 +26,8 @@ class Detection:
 
 
 def segment_largest(depth: np.ndarray, camera: CameraModel, table_z: float = 0.0, min_height: float = 0.008,
-                    min_range: float = 0.06, min_pixels: int = 12) -> Detection | None:
+                    min_range: float = 0.11, min_pixels: int = 12, near: np.ndarray | None = None,
+                    radius: float = 0.06) -> Detection | None:
     """The largest connected blob standing above the table in a wrist depth image, or None.
 
     Args:
@@ -36,6 +37,9 @@ def segment_largest(depth: np.ndarray, camera: CameraModel, table_z: float = 0.0
         min_height: a pixel belongs to an object when its world point is this much above the table.
         min_range: pixels closer than this to the camera (the fingers) are ignored.
         min_pixels: blobs smaller than this are noise.
+        near: if given, only blobs whose centroid lies within ``radius`` (horizontally) of this world
+            point compete — the wrist camera also sees neighbouring objects, and the waypoint already
+            says roughly where the object to grasp is.
     """
     h, w = depth.shape
     v, u = np.mgrid[0:h, 0:w]
@@ -45,12 +49,15 @@ def segment_largest(depth: np.ndarray, camera: CameraModel, table_z: float = 0.0
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     if n <= 1:
         return None
-    areas = stats[1:, cv2.CC_STAT_AREA]
-    best = 1 + int(np.argmax(areas))
-    if areas[best - 1] < min_pixels:
-        return None
-    blob = labels == best
-    # Centroid of the blob's top surface in the world (x, y from the points; z = the highest part).
-    world = pts[blob]
-    return Detection(world=np.array([world[:, 0].mean(), world[:, 1].mean(), world[:, 2].max()]),
-                     pixels=int(blob.sum()))
+    best: Detection | None = None
+    for label in range(1, n):
+        area = int(stats[label, cv2.CC_STAT_AREA])
+        if area < min_pixels or (best is not None and area <= best.pixels):
+            continue
+        world = pts[labels == label]
+        # Centroid of the blob in the world (x, y from its points; z = its highest part).
+        centre = np.array([world[:, 0].mean(), world[:, 1].mean(), world[:, 2].max()])
+        if near is not None and np.linalg.norm(centre[:2] - np.asarray(near)[:2]) > radius:
+            continue
+        best = Detection(world=centre, pixels=area)
+    return best

@@ -151,8 +151,10 @@ def finish_spec(spec, info: RobotInfo) -> None:
         # (y = finger closing direction).
         link7.add_site(name="grasp_site", pos=[0, 0, 0.226], quat=[0.92388, 0, 0, -0.382683], size=[0.006, 0, 0])
         link7.add_camera(name="wrist", pos=[0.0, 0.0, 0.165], xyaxes=[1, 0, 0, 0, -1, 0], fovy=75)
-        for j in info.arm_joints:
-            spec.joint(j).damping = 20.0
+        # The kitchen model's joint damping (100 on the shoulder, 10 on the forearm) makes the position
+        # servos lag by ~0.1 s, which bends Cartesian paths by centimetres; keep damping/kp near 0.03 s.
+        for i, j in enumerate(info.arm_joints):
+            spec.joint(j).damping = 20.0 if i < 4 else 4.0
             spec.joint(j).armature = 0.1
         # The kitchen fingers squeeze with up to 70 N, which pops light round objects out of the grasp.
         for a in info.finger_actuators:

@@ -30,7 +30,7 @@ TARGET_HALF = 0.055
 
 PUSH_DISTANCE = 0.10  # a push succeeds when the box moved at least this far in the right direction
 PUSH_OTHER_TOL = 0.04  # and the other box moved less than this
-PUSH_Z = 0.025
+PUSH_Z = 0.035
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ class Task:
             obj_perm = rng.permutation(len(info.objects))
             tgt_perm = rng.permutation(len(info.targets))
             jit = rng.uniform(-PP_JITTER, PP_JITTER, size=(len(info.objects) + len(info.targets), 2))
-            yaw = rng.uniform(-0.3, 0.3, size=len(info.objects))
+            yaw = rng.uniform(-0.15, 0.15, size=len(info.objects))
             for i, name in enumerate(info.objects):
                 slot = obj_perm[i]
                 layout.object_pos[name] = np.array(

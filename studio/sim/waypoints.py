@@ -41,6 +41,7 @@ class ControllerConfig:
         approach_height: how far above a grasp waypoint the arm first goes.
         grasp_correction: use the wrist depth camera before grasping.
         correction_iterations: how many times grasp correction looks and re-centres.
+        correction_radius: only objects within this distance of the planned grasp are candidates.
         close_ticks: ticks to wait after closing the gripper; ``open_ticks`` likewise after opening.
         min_grasp_z: lowest grasp-site height for a grasp (keeps fingertips off the table), per robot.
     """
@@ -53,6 +54,7 @@ class ControllerConfig:
     approach_height: float = 0.12
     grasp_correction: bool = True
     correction_iterations: int = 3
+    correction_radius: float = 0.06
     close_ticks: int = 18
     open_ticks: int = 12
     min_grasp_z: dict[str, float] = field(default_factory=lambda: {"panda": 0.045, "sawyer": 0.045})
@@ -125,14 +127,12 @@ class WaypointController:
         point = above.copy()
         for i in range(self.config.correction_iterations):
             depth = self.env.render_depth("wrist")
-            det = segment_largest(depth, self.env.camera_model("wrist"))
+            det = segment_largest(depth, self.env.camera_model("wrist"), near=above,
+                                  radius=self.config.correction_radius)
             if det is None:
                 self._event("grasp_correction", iteration=i + 1, found=False)
                 break
             shift = det.world[:2] - self.env.ee_pos[:2]
-            if np.linalg.norm(shift) > 0.08:  # a different object far away: do not chase it
-                self._event("grasp_correction", iteration=i + 1, found=False, rejected=float(np.linalg.norm(shift)))
-                break
             point = np.array([det.world[0], det.world[1], above[2]])
             self._event("grasp_correction", iteration=i + 1, found=True, shift=shift.tolist())
             self.move_to(point, 0.0, max_ticks=60, tolerance=0.004)

@@ -1,0 +1,57 @@
+"""Waypoint controller: reaching, re-planning inside one episode, grasp correction."""
+
+import numpy as np
+import pytest
+
+from studio.sim.experts import expert_waypoints
+from studio.sim.waypoints import ControllerConfig, WaypointController
+
+
+def test_reaches_given_waypoints(env_factory):
+    env = env_factory("pick_place", "panda")
+    env.reset("pick_place/cube->red", 2)
+    wps = np.array([[0.1, 0.45, 0.2, 0], [-0.1, 0.5, 0.15, 0], [0.0, 0.4, 0.25, 0]])
+    result = WaypointController(env).execute(wps)
+    assert all(result.reached)
+    assert np.linalg.norm(env.ee_pos - wps[-1, :3]) < 0.01
+
+
+def test_replanning_continues_the_same_episode(env_factory):
+    env = env_factory("pick_place", "sawyer")
+    env.reset("pick_place/cube->red", 4)
+    ctl = WaypointController(env, ControllerConfig(grasp_correction=False))
+    # A first plan that misses (grasps empty air), then a good plan from where the arm stands.
+    miss = np.array([[0.3, 0.8, 0.1, 1], [0.3, 0.8, 0.15, 1], [0.3, 0.8, 0.15, 0]])
+    first = ctl.execute(miss)
+    assert not first.success
+    steps, time_before = env.steps, env.data.time
+    moved = {o: p.copy() for o, p in env.object_poses().items()}
+    second = ctl.execute(expert_waypoints(env))
+    assert second.success
+    assert env.steps > steps and env.data.time > time_before  # no reset happened in between
+    assert env.steps == first.ticks + second.ticks
+    # Objects the second plan did not touch are where the first plan left them.
+    assert np.allclose(env.object_poses()["bar"][:3], moved["bar"][:3], atol=2e-3)
+
+
+def test_invalid_waypoints_are_rejected(env_factory):
+    env = env_factory("push", "panda")
+    env.reset("push/red-forward", 0)
+    with pytest.raises(ValueError, match="waypoints"):
+        WaypointController(env).execute(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="NaN"):
+        WaypointController(env).execute(np.full((2, 4), np.nan))
+
+
+def test_grasp_correction_centres_on_an_offset_object(env_factory):
+    env = env_factory("pick_place", "panda")
+    env.reset("pick_place/cylinder->green", 7)
+    obj = env.object_poses()["cylinder"][:3]
+    events = []
+    ctl = WaypointController(env, on_event=lambda k, i: events.append((k, i)))
+    above = obj + np.array([0.02, 0.0, 0.12])  # 2 cm off in x
+    ctl.move_to(above, 0.0)
+    corrected = ctl.correct_grasp(above)
+    assert np.linalg.norm(corrected[:2] - obj[:2]) < 0.005
+    assert np.linalg.norm(env.ee_pos[:2] - obj[:2]) < 0.006
+    assert sum(1 for k, i in events if k == "grasp_correction" and i["found"]) == 3
