@@ -14,6 +14,7 @@ import sys
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("studio.bench", "run a benchmark and print one JSON object"),
+    "serve": ("studio.ui.serve", "start the browser studio and print its URL"),
 }
 
 
