@@ -58,14 +58,18 @@ def _fsync_path(path: Path, directory: bool = False) -> None:
         os.close(fd)
 
 
-def _lock(path: Path, blocking: bool) -> int | None:
-    """An exclusive flock on ``path`` (created if missing); None if ``blocking`` is False and it is held.
+def _lock(path: Path, blocking: bool, create: bool = True) -> int | None:
+    """An exclusive flock on ``path``; None if ``blocking`` is False and it is held, or if ``create`` is
+    False and there is no such file.
 
     Re-checks after locking that ``path`` still names the locked file, since a cleaner may unlink a lock
     file between our open and our flock.
     """
     while True:
-        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        try:
+            fd = os.open(path, os.O_RDWR | (os.O_CREAT if create else 0), 0o644)
+        except FileNotFoundError:
+            return None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
         except OSError as e:
@@ -333,6 +337,8 @@ class EpisodeStore:
             if fd is None:
                 continue  # a live writer owns it
             try:
+                if not entry.exists():
+                    continue  # its writer finished (and renamed it) while we listed
                 report.temp_dirs.append(entry.name)
                 if clean:
                     shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(
@@ -372,9 +378,9 @@ class EpisodeStore:
         for lock_path in sorted(self.tmp_dir.glob("*.lock")):
             if (self.tmp_dir / lock_path.stem).exists():
                 continue
-            fd = _lock(lock_path, blocking=False)
+            fd = _lock(lock_path, blocking=False, create=False)
             if fd is None:
-                continue
+                continue  # held by a live writer, or released meanwhile
             report.stale_locks.append(lock_path.name)
             if clean:
                 _unlock(lock_path, fd)
