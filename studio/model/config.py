@@ -1,0 +1,293 @@
+"""Typed configuration of the OSVI-WM network (`ModelConfig`) and of its training (`TrainConfig`), with presets.
+
+Presets (``preset(name)`` returns a ``(ModelConfig, TrainConfig)`` pair):
+
+* ``paper`` — the sizes of the paper for the pick-and-place benchmarks: 240×320 input, full ResNet-18 trunk
+  (F = 512 channels, 8×10 map), 2 causal action blocks with 4 heads, 1 world-model block with 4 heads and width
+  512, batch 128, 10 epochs, α = 1 constant, AdamW with a one-cycle schedule 2e-4 → 2e-7.
+* ``paper-metaworld`` — the paper's Meta-World variant: 224×224 input (7×7 map), 6 action blocks with dropout 0.3,
+  α decaying exponentially 1 → 0.05.
+* ``cpu`` — what we train on a 2-core laptop CPU. Chosen by measurement on a 2-vCPU Sapphire-Rapids VM
+  (torch 2.14, fp32, 2 threads; encoder forward+backward over the 11 input frames of one pair, and forward only
+  for planning):
+
+  ======================  ==============  ============  ================  ==========================
+  trunk                   input           state map      fwd+bwd 11 fr.    inference 11 fr. (plan)
+  ======================  ==============  ============  ================  ==========================
+  layer1-4 (paper)        240×320         512×8×10      0.95–1.2 s         0.25–0.42 s
+  layer1-4                120×160         512×4×5       0.21–0.24 s        0.07 s
+  layer1-4                96×128          512×3×4       0.14 s             0.04–0.05 s
+  layer1-3                120×160         256×8×10      0.14–0.17 s        0.04–0.05 s
+  layer1-3                96×128          256×6×8       0.10–0.11 s        0.03–0.04 s
+  ======================  ==============  ============  ================  ==========================
+
+  We pick 120×160 with the trunk cut after layer3 (stride 16): it keeps the paper's 8×10 latent grid — the
+  spatial resolution the keypoint pooling and the waypoints are read from — at about a quarter of the paper
+  trunk's cost, where the full trunk at 96×128 would leave a 3×4 grid. A 1×1 convolution reduces the 256 maps to
+  64 state channels before π and 𝒲, which shrinks the dense world-model projections from 2·512·80 → 512 (42 M
+  weights) to 2·64·80 → 256 (2.6 M). π keeps 2 blocks and 4 heads (attention width 64), 𝒲 1 block of width 256.
+  Batch 16, α = 1. Measured end to end with `studio bench model --config cpu`: see the issue report / bench JSON.
+
+Ablations (paper section 4, "ablations"), all switches of ``ModelConfig``/``TrainConfig``:
+
+* ``ModelConfig.world_model=False`` — no world model: the action model's single latent action for the first
+  agent state is pooled and decoded (a one-element trajectory); there is then no world-model loss.
+* ``TrainConfig.wm_loss=False`` — the world model is kept but 𝓛_wm is not applied (future frames not encoded).
+* ``TrainConfig.stop_gradient=False`` — 𝓛_wm back-propagates into the encoder through the targets as well.
+* ``ModelConfig.pool_before_wm=True`` — spatial-softmax pooling is applied to the encoder states before π and 𝒲,
+  which then work on 2F-vectors instead of F×H×W maps.
+* ``ModelConfig.single_step=True`` — the world model makes one prediction, supervised by the last agent frame
+  (the reference code's pick-and-place setting of a first and a last agent frame).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+
+@dataclass
+class ModelConfig:
+    """Every size of the network; map sizes are derived from ``image_size`` by probing the encoder.
+
+    Attributes:
+        image_size: (height, width) of the model's input images.
+        n_expert_frames: N, expert frames per demonstration.
+        n_agent_frames: M, agent frames per training clip (the model predicts M − 1 future states).
+        encoder_stages: how many ResNet-18 stages to keep (4 = the whole trunk, stride 32; 3 stops at stride 16).
+        pretrained: load torchvision's ImageNet weights for the trunk (downloads; off by default).
+        channels_last: run the convolutional trunk in channels-last memory layout (faster on CPU).
+        state_channels: 1×1-convolution reduction of the trunk's maps to this many channels; 0 keeps them.
+        action_blocks, action_heads, action_attn_dim, action_mlp_dim, action_dropout: the causal transformer π.
+        wm_blocks, wm_heads, wm_width, wm_mlp_dim, wm_dropout: the causal transformer 𝒲.
+        pool_heads: heads of the attention pooling over predicted steps.
+        head_hidden, head_dropout: the two-layer waypoint MLP.
+        max_waypoints: the largest waypoint set; sets of 1..max_waypoints are predicted (15 rows for 5).
+        depth_offset, depth_scale: predicted depth z = depth_offset + depth_scale · raw (metres); the trainer
+            sets ``depth_offset`` from the training data's median path depth before the first step.
+        world_model, pool_before_wm, single_step: ablation switches (module docstring).
+    """
+
+    image_size: tuple[int, int] = (240, 320)
+    n_expert_frames: int = 10
+    n_agent_frames: int = 6
+    encoder_stages: int = 4
+    pretrained: bool = False
+    channels_last: bool = True
+    state_channels: int = 0
+    action_blocks: int = 2
+    action_heads: int = 4
+    action_attn_dim: int = 128
+    action_mlp_dim: int = 512
+    action_dropout: float = 0.0
+    wm_blocks: int = 1
+    wm_heads: int = 4
+    wm_width: int = 512
+    wm_mlp_dim: int = 2048
+    wm_dropout: float = 0.0
+    pool_heads: int = 1
+    head_hidden: int = 1280
+    head_dropout: float = 0.2
+    max_waypoints: int = 5
+    depth_offset: float = 1.0
+    depth_scale: float = 0.5
+    world_model: bool = True
+    pool_before_wm: bool = False
+    single_step: bool = False
+
+    def __post_init__(self) -> None:
+        self.image_size = tuple(int(v) for v in self.image_size)  # type: ignore[assignment]
+        if len(self.image_size) != 2 or min(self.image_size) < 16:
+            raise ValueError(f"ModelConfig.image_size must be (height, width) >= 16, got {self.image_size}")
+        if not 1 <= self.encoder_stages <= 4:
+            raise ValueError(f"ModelConfig.encoder_stages must be 1..4, got {self.encoder_stages}")
+        if self.n_expert_frames < 1 or self.n_agent_frames < 2:
+            raise ValueError(
+                f"need n_expert_frames >= 1 and n_agent_frames >= 2, got {self.n_expert_frames}, {self.n_agent_frames}"
+            )
+        if self.action_attn_dim % self.action_heads:
+            raise ValueError(
+                f"action_attn_dim {self.action_attn_dim} is not divisible by action_heads {self.action_heads}"
+            )
+        if self.wm_width % self.wm_heads:
+            raise ValueError(f"wm_width {self.wm_width} is not divisible by wm_heads {self.wm_heads}")
+        if self.max_waypoints < 1:
+            raise ValueError(f"max_waypoints must be >= 1, got {self.max_waypoints}")
+        if self.depth_scale <= 0:
+            raise ValueError(f"depth_scale must be positive, got {self.depth_scale}")
+
+    @property
+    def waypoint_rows(self) -> int:
+        """Rows of the head's output: the sets of 1, 2, …, max_waypoints waypoints stacked."""
+        return self.max_waypoints * (self.max_waypoints + 1) // 2
+
+    @property
+    def predicted_steps(self) -> int:
+        """How many future latent states the recursion predicts."""
+        if not self.world_model:
+            return 1
+        return 1 if self.single_step else self.n_agent_frames - 1
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation, losses, augmentation and bookkeeping of a training run.
+
+    Attributes:
+        batch_size: pairs per optimiser step (global, summed over data-parallel processes).
+        epochs: passes over the training pairs; ``max_steps`` > 0 overrides the length.
+        pairs_per_expert: batches are built from groups of pairs sharing one expert demonstration (when the
+            dataset exposes ``expert_indices``), so the expert video is augmented and encoded once per group.
+        lr_max, lr_final, lr_warmup: one-cycle schedule — linear warm-up over ``lr_warmup`` of the steps from
+            lr_max / 25 (none by default, as in the paper: "start 2e-4"), then cosine down to lr_final.
+        weight_decay, grad_clip: AdamW decay and global gradient-norm clipping (0 disables clipping).
+        alpha_schedule, alpha, alpha_end, alpha_decay: α(τ) of 𝓛 = 𝓛_sdtw + α(τ)·𝓛_wm. "constant": α;
+            "exponential": α_end + (α − α_end)·exp(−alpha_decay·τ/T) (1 → 0.05 over training for Meta-World).
+        wm_loss, stop_gradient: ablation switches.
+        sdtw_gamma, sdtw_normalize, dense_points, gripper_weight: the waypoint loss (see ``losses``).
+        crop, translate, scale, hflip, vflip, brightness, contrast, saturation, hue: augmentation ranges
+            (fractions of the image size for crop/translate; scale is a zoom range; flips are probabilities).
+        mixup, mixup_min: asymmetric demonstration mixup with β ~ U(mixup_min, 1) and a partner of another task.
+        seed: every random choice of the run derives from it.
+        val_every, val_batches: validation cadence (steps) and size (batches; 0 = the whole validation set).
+        checkpoint_every, log_every: bookkeeping cadence in steps.
+        num_workers: DataLoader worker processes.
+        precision: "fp32" or "bf16" (CPU/GPU autocast for the forward pass).
+    """
+
+    batch_size: int = 128
+    epochs: float = 10.0
+    max_steps: int = 0
+    pairs_per_expert: int = 2
+    lr_max: float = 2e-4
+    lr_final: float = 2e-7
+    lr_warmup: float = 0.0
+    weight_decay: float = 1e-3
+    grad_clip: float = 1.0
+    alpha_schedule: Literal["constant", "exponential"] = "constant"
+    alpha: float = 1.0
+    alpha_end: float = 0.05
+    alpha_decay: float = 10.0
+    wm_loss: bool = True
+    stop_gradient: bool = True
+    sdtw_gamma: float = 1e-3
+    sdtw_normalize: bool = False
+    dense_points: int = 60
+    gripper_weight: float = 0.2
+    crop: float = 0.05
+    translate: float = 0.05
+    scale: tuple[float, float] = (0.95, 1.05)
+    hflip: float = 0.5
+    vflip: float = 0.0
+    brightness: float = 0.4
+    contrast: float = 0.4
+    saturation: float = 0.4
+    hue: float = 0.05
+    mixup: bool = True
+    mixup_min: float = 0.3
+    seed: int = 0
+    val_every: int = 500
+    val_batches: int = 20
+    checkpoint_every: int = 200
+    log_every: int = 10
+    num_workers: int = 1
+    precision: Literal["fp32", "bf16"] = "fp32"
+
+    def __post_init__(self) -> None:
+        self.scale = tuple(float(v) for v in self.scale)  # type: ignore[assignment]
+        if self.batch_size < 1 or self.pairs_per_expert < 1:
+            raise ValueError(
+                f"batch_size and pairs_per_expert must be >= 1, got {self.batch_size}, {self.pairs_per_expert}"
+            )
+        if self.alpha_schedule not in ("constant", "exponential"):
+            raise ValueError(
+                f"alpha_schedule must be 'constant' or 'exponential', got {self.alpha_schedule!r}"
+            )
+        if self.precision not in ("fp32", "bf16"):
+            raise ValueError(f"precision must be 'fp32' or 'bf16', got {self.precision!r}")
+        if not 0.0 < self.mixup_min <= 1.0:
+            raise ValueError(f"mixup_min must be in (0, 1], got {self.mixup_min}")
+        if self.sdtw_gamma <= 0:
+            raise ValueError(f"sdtw_gamma must be positive, got {self.sdtw_gamma}")
+        if not 0.0 <= self.lr_warmup < 1.0:
+            raise ValueError(f"lr_warmup must be a fraction in [0, 1), got {self.lr_warmup}")
+        if len(self.scale) != 2 or not 0 < self.scale[0] <= self.scale[1]:
+            raise ValueError(f"scale must be (low, high) with 0 < low <= high, got {self.scale}")
+
+
+@dataclass
+class RunConfig:
+    """The two halves together: what a checkpoint embeds and a run directory records."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"model": dataclasses.asdict(self.model), "train": dataclasses.asdict(self.train)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RunConfig:
+        return cls(
+            model=_from_dict(ModelConfig, d.get("model", {})),
+            train=_from_dict(TrainConfig, d.get("train", {})),
+        )
+
+    def with_overrides(self, assignments: list[str]) -> RunConfig:
+        """A copy with ``section.field=value`` assignments applied (values parsed as JSON, else as strings)."""
+        import json
+
+        d = self.to_dict()
+        for item in assignments:
+            key, sep, raw = item.partition("=")
+            section, dot, name = key.strip().partition(".")
+            if not sep or not dot or section not in d:
+                raise ValueError(f"override {item!r} must look like model.field=value or train.field=value")
+            if name not in d[section]:
+                raise ValueError(f"unknown {section} field {name!r}; known: {', '.join(sorted(d[section]))}")
+            try:
+                value = json.loads(raw)
+            except json.JSONDecodeError:
+                value = raw
+            d[section][name] = value
+        return RunConfig.from_dict(d)
+
+
+def _from_dict(cls, d: dict[str, Any]):
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(d) - known
+    if unknown:
+        raise ValueError(f"unknown {cls.__name__} fields: {', '.join(sorted(unknown))}")
+    return cls(**d)
+
+
+PRESETS = ("paper", "paper-metaworld", "cpu")
+
+
+def preset(name: str) -> RunConfig:
+    """The named configuration (see the module docstring)."""
+    if name == "paper":
+        return RunConfig(ModelConfig(), TrainConfig())
+    if name == "paper-metaworld":
+        model = ModelConfig(image_size=(224, 224), action_blocks=6, action_dropout=0.3, wm_dropout=0.3)
+        train = TrainConfig(alpha_schedule="exponential", alpha=1.0, alpha_end=0.05)
+        return RunConfig(model, train)
+    if name == "cpu":
+        model = ModelConfig(
+            image_size=(120, 160),
+            encoder_stages=3,
+            state_channels=64,
+            action_blocks=2,
+            action_heads=4,
+            action_attn_dim=64,
+            action_mlp_dim=128,
+            wm_blocks=1,
+            wm_heads=4,
+            wm_width=256,
+            wm_mlp_dim=512,
+            head_hidden=256,
+            head_dropout=0.1,
+        )
+        train = TrainConfig(batch_size=16, epochs=10.0, val_every=250, checkpoint_every=100)
+        return RunConfig(model, train)
+    raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
