@@ -1,0 +1,440 @@
+"""Zenoh session configuration and the typed request / reply / publish helpers the backend is built on.
+
+Defaults keep the bus private to the machine: no multicast scouting, and every endpoint the studio
+opens by itself is on ``127.0.0.1``. The UI host (the *hub*) runs a Zenoh router listening on
+``tcp/127.0.0.1:7447``; workers are Zenoh clients connecting to it. Going multi-machine means only
+changing endpoints (``--listen tcp/0.0.0.0:7447`` on the hub, ``--connect tcp/<hub>:7447`` on workers);
+see ``docs/deployment.md``.
+
+Every payload goes through :mod:`studio.backend.messages`; the helpers here decode and validate what
+arrives, answer malformed requests with an :class:`~studio.backend.messages.ErrorReply` and log and drop
+malformed publications, so that no input can crash a process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal, TypeVar
+
+import zenoh
+
+from studio.backend import messages as msg
+
+log = logging.getLogger("studio.backend")
+
+DEFAULT_PORT = 7447
+DEFAULT_HUB_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
+MODES = ("peer", "client", "router")
+
+#: Zenoh's link lease: a peer that stops answering (machine gone, cable pulled) is declared lost after
+#: this long, so its liveliness tokens vanish and its jobs are reported within the 5 s the studio promises.
+#: A killed process is noticed at once (its TCP connection closes).
+LEASE_MS = 3000
+
+
+class BusError(RuntimeError):
+    """The bus could not be opened, or a request got no valid answer."""
+
+
+class RemoteError(BusError):
+    """The other side answered a request with an :class:`~studio.backend.messages.ErrorReply`."""
+
+    def __init__(self, code: str, message: str, key: str = ""):
+        super().__init__(f"{code}: {message}" + (f" (from {key})" if key else ""))
+        self.code = code
+        self.message = message
+
+
+def loopback_endpoint(port: int) -> str:
+    return f"tcp/127.0.0.1:{int(port)}"
+
+
+def free_loopback_port() -> int:
+    """A TCP port on 127.0.0.1 that is free right now (the OS picks it)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _check_endpoint(endpoint: str) -> str:
+    proto, sep, address = endpoint.partition("/")
+    if not sep or not proto or not address or ":" not in address:
+        raise ValueError(
+            f"endpoint {endpoint!r} must look like <protocol>/<host>:<port>, e.g. tcp/127.0.0.1:7447"
+        )
+    return endpoint
+
+
+def is_loopback_endpoint(endpoint: str) -> bool:
+    address = endpoint.partition("/")[2].split("#")[0]
+    host = address.rsplit(":", 1)[0].strip("[]")
+    return host in ("127.0.0.1", "localhost", "::1") or host.startswith("127.")
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """How a process joins the bus.
+
+    Attributes:
+        mode: Zenoh mode: ``router`` (the hub), ``client`` (a worker connecting to a hub) or ``peer``.
+        connect: endpoints to connect to.
+        listen: endpoints to listen on (a peer without any listens on an OS-chosen loopback port).
+        multicast_scouting: let Zenoh discover peers by UDP multicast (off: endpoints are explicit).
+        lease_ms: link lease, see :data:`LEASE_MS`.
+        connect_timeout_s: how long a client waits for its hub when opening before giving up.
+    """
+
+    mode: Literal["peer", "client", "router"] = "client"
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    lease_ms: int = LEASE_MS
+    connect_timeout_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"bus mode must be one of {MODES}, got {self.mode!r}")
+        object.__setattr__(self, "connect", tuple(_check_endpoint(e) for e in self.connect))
+        object.__setattr__(self, "listen", tuple(_check_endpoint(e) for e in self.listen))
+        if self.mode == "client" and not self.connect:
+            raise ValueError("a bus client needs at least one --connect endpoint")
+        if self.mode == "client" and self.listen:
+            raise ValueError("a bus client does not listen; use --mode peer to accept connections")
+        if self.mode == "router" and not self.listen:
+            raise ValueError("a bus router needs a --listen endpoint")
+
+    @classmethod
+    def hub(cls, listen: Iterable[str] = (DEFAULT_HUB_ENDPOINT,), connect: Iterable[str] = ()) -> BusConfig:
+        """The UI host's configuration: a router (by default on loopback port 7447)."""
+        return cls(mode="router", listen=tuple(listen), connect=tuple(connect))
+
+    @classmethod
+    def worker(
+        cls, connect: Iterable[str] = (), listen: Iterable[str] = (), mode: str | None = None
+    ) -> BusConfig:
+        """A worker's configuration: a client of the hub unless it listens itself (then a peer)."""
+        connect, listen = tuple(connect), tuple(listen)
+        if not connect and not listen:
+            connect = (DEFAULT_HUB_ENDPOINT,)
+        if mode is None:
+            mode = "peer" if listen else "client"
+        return cls(mode=mode, connect=connect, listen=listen)
+
+    @property
+    def is_loopback_only(self) -> bool:
+        return all(is_loopback_endpoint(e) for e in self.connect + self.listen)
+
+    def zenoh_config(self) -> zenoh.Config:
+        listen = list(self.listen)
+        if self.mode == "peer" and not listen:
+            listen = ["tcp/127.0.0.1:0"]  # Zenoh's own default would listen on every interface
+        conf: dict[str, Any] = {
+            "mode": self.mode,
+            "connect": {
+                "endpoints": list(self.connect),
+                "timeout_ms": int(self.connect_timeout_s * 1000) if self.mode == "client" else -1,
+                "exit_on_failure": self.mode == "client",
+                "retry": {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2},
+            },
+            "listen": {"endpoints": listen},
+            "scouting": {"multicast": {"enabled": bool(self.multicast_scouting)}},
+            "transport": {"link": {"tx": {"lease": int(self.lease_ms), "keep_alive": 4}}},
+        }
+        return zenoh.Config.from_json5(json.dumps(conf))
+
+    def to_args(self) -> list[str]:
+        """Command-line options that reproduce this configuration (for spawning a worker)."""
+        args = ["--mode", self.mode]
+        for e in self.connect:
+            args += ["--connect", e]
+        for e in self.listen:
+            args += ["--listen", e]
+        if self.multicast_scouting:
+            args.append("--multicast-scouting")
+        return args
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser, role: Literal["worker", "hub"]) -> None:
+    """``--connect`` / ``--listen`` / ``--mode`` / ``--multicast-scouting``, with the role's defaults."""
+    g = parser.add_argument_group("bus (Zenoh)")
+    default = (
+        f"default: connect to {DEFAULT_HUB_ENDPOINT} as a client"
+        if role == "worker"
+        else f"default: listen on {DEFAULT_HUB_ENDPOINT} as a router"
+    )
+    g.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help=f"endpoint to connect to, e.g. tcp/10.0.0.5:7447 (repeatable; {default})",
+    )
+    g.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 to accept other machines (repeatable)",
+    )
+    g.add_argument(
+        "--mode",
+        choices=MODES,
+        default=None,
+        help="Zenoh mode (default: "
+        + ("client, or peer with --listen" if role == "worker" else "router")
+        + ")",
+    )
+    g.add_argument(
+        "--multicast-scouting", action="store_true", help="discover peers by UDP multicast (off by default)"
+    )
+
+
+def bus_config_from_args(args: argparse.Namespace, role: Literal["worker", "hub"]) -> BusConfig:
+    if role == "worker":
+        cfg = BusConfig.worker(connect=args.connect, listen=args.listen, mode=args.mode)
+    else:
+        cfg = BusConfig(
+            mode=args.mode or "router",
+            connect=tuple(args.connect),
+            listen=tuple(args.listen) or (DEFAULT_HUB_ENDPOINT,),
+        )
+    if args.multicast_scouting:
+        cfg = replace(cfg, multicast_scouting=True)
+    return cfg
+
+
+def open_session(config: BusConfig) -> zenoh.Session:
+    """Open a Zenoh session; raises :class:`BusError` with the endpoints in the message on failure."""
+    if not config.is_loopback_only:
+        log.info("bus endpoints leave this machine: connect=%s listen=%s", config.connect, config.listen)
+    try:
+        return zenoh.open(config.zenoh_config())
+    except zenoh.ZError as e:
+        where = ", ".join(config.connect + config.listen) or "(no endpoint)"
+        hint = " — is the hub (`studio serve` / `studio hub`) running?" if config.mode == "client" else ""
+        raise BusError(f"cannot open the bus as {config.mode} on {where}: {e}{hint}") from None
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+class _RateLimitedLog:
+    """Log at most one warning per key per interval (a flood of bad input must not flood the log)."""
+
+    def __init__(self, interval_s: float = 2.0):
+        self.interval_s = interval_s
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def warning(self, key: str, text: str, *args: Any) -> None:
+        now = time.monotonic()
+        with self._lock:
+            if now - self._last.get(key, -1e9) < self.interval_s:
+                self._suppressed[key] = self._suppressed.get(key, 0) + 1
+                return
+            self._last[key] = now
+            suppressed = self._suppressed.pop(key, 0)
+        more = f" ({suppressed} similar dropped)" if suppressed else ""
+        log.warning(text + more, *args)
+
+
+bad_input_log = _RateLimitedLog()
+
+M = TypeVar("M", bound=msg.Message)
+
+
+def payload_bytes(zbytes: zenoh.ZBytes | None) -> bytes:
+    return b"" if zbytes is None else zbytes.to_bytes()
+
+
+def request(
+    session: zenoh.Session,
+    key: str,
+    message: msg.Message,
+    expect: type[M] | tuple[type[msg.Message], ...],
+    *,
+    timeout: float = 5.0,
+) -> M:
+    """Send ``message`` as a query to ``key`` and return the first valid reply.
+
+    Raises :class:`RemoteError` if the answer is an ErrorReply and :class:`BusError` if nothing valid
+    arrives within ``timeout`` seconds.
+    """
+    problems: list[str] = []
+    for reply in session.get(key, payload=msg.encode(message), timeout=timeout):
+        if reply.ok is None:
+            problems.append(payload_bytes(reply.err.payload).decode("utf-8", "replace"))
+            continue
+        try:
+            answer = msg.decode(payload_bytes(reply.ok.payload))
+        except msg.ProtocolError as e:
+            problems.append(f"malformed reply: {e}")
+            continue
+        if isinstance(answer, msg.ErrorReply):
+            raise RemoteError(answer.code, answer.message, key)
+        if not isinstance(answer, expect):
+            problems.append(f"unexpected reply {type(answer).__name__}")
+            continue
+        return answer
+    detail = "; ".join(problems) if problems else "nobody answered"
+    raise BusError(f"{type(message).__name__} to {key} failed within {timeout:.1f} s: {detail}")
+
+
+def request_all(
+    session: zenoh.Session,
+    selector: str,
+    expect: type[M],
+    message: msg.Message | None = None,
+    *,
+    timeout: float = 2.0,
+) -> list[M]:
+    """Every valid reply of type ``expect`` to a query on ``selector`` (malformed ones are logged)."""
+    out: list[M] = []
+    kwargs: dict[str, Any] = {"timeout": timeout, "target": zenoh.QueryTarget.ALL}
+    if message is not None:
+        kwargs["payload"] = msg.encode(message)
+    for reply in session.get(selector, **kwargs):
+        if reply.ok is None:
+            continue
+        try:
+            out.append(msg.decode(payload_bytes(reply.ok.payload), expect))
+        except msg.ProtocolError as e:
+            bad_input_log.warning(f"reply:{selector}", "dropped a malformed reply to %s: %s", selector, e)
+    return out
+
+
+#: Returned by a queryable handler that keeps the query to answer it later (it must then call
+#: :func:`reply` and ``query.drop()`` itself).
+DEFERRED = object()
+
+Reply = msg.Message | list[tuple[str, msg.Message]] | None
+
+
+def reply(query: zenoh.Query, message: msg.Message, key: str | None = None) -> None:
+    query.reply(key or str(query.key_expr), msg.encode(message))
+
+
+def declare_queryable(
+    session: zenoh.Session,
+    key: str,
+    handler: Callable[[msg.Message | None, zenoh.Query], Any],
+    expect: type[msg.Message] | tuple[type[msg.Message], ...] | None = None,
+) -> zenoh.Queryable:
+    """A queryable whose handler receives the decoded request (None without payload).
+
+    The handler returns a message (the reply), a list of (key, message) replies, None (no reply) or
+    :data:`DEFERRED`. Malformed requests get ``ErrorReply("bad_request")``; a handler that raises gets
+    ``ErrorReply("internal")`` and the exception is logged — the process keeps serving.
+    """
+
+    def on_query(query: zenoh.Query) -> None:
+        deferred = False
+        try:
+            data = payload_bytes(query.payload)
+            request_msg = None
+            if data or expect is not None:
+                try:
+                    request_msg = msg.decode(data, expect) if expect is not None else msg.decode(data)
+                except msg.ProtocolError as e:
+                    bad_input_log.warning(
+                        f"query:{key}", "rejected a malformed request on %s: %s", query.key_expr, e
+                    )
+                    reply(query, msg.ErrorReply(code="bad_request", message=str(e)[:4000]))
+                    return
+            try:
+                answer = handler(request_msg, query)
+            except Exception as e:
+                log.exception("handler for %s failed", query.key_expr)
+                reply(query, msg.ErrorReply(code="internal", message=f"{type(e).__name__}: {e}"[:4000]))
+                return
+            if answer is DEFERRED:
+                deferred = True
+            elif isinstance(answer, list):
+                for k, m in answer:
+                    reply(query, m, k)
+            elif answer is not None:
+                reply(query, answer)
+        except Exception:
+            log.exception("could not answer a query on %s", key)
+        finally:
+            if not deferred:
+                query.drop()
+
+    return session.declare_queryable(key, on_query)
+
+
+def declare_subscriber(
+    session: zenoh.Session,
+    key: str,
+    callback: Callable[[msg.Message, zenoh.Sample], None],
+    expect: type[msg.Message] | tuple[type[msg.Message], ...] | None = None,
+    **kwargs: Any,
+) -> zenoh.Subscriber:
+    """A subscriber that hands decoded, validated messages to ``callback``; bad samples are logged and
+    dropped, and an exception in ``callback`` is logged (the subscription stays alive)."""
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        try:
+            message = (
+                msg.decode(payload_bytes(sample.payload), expect)
+                if expect
+                else msg.decode(payload_bytes(sample.payload))
+            )
+        except msg.ProtocolError as e:
+            bad_input_log.warning(f"sub:{key}", "dropped a malformed message on %s: %s", sample.key_expr, e)
+            return
+        try:
+            callback(message, sample)
+        except Exception:
+            log.exception("subscriber callback for %s failed", sample.key_expr)
+
+    return session.declare_subscriber(key, on_sample, **kwargs)
+
+
+@dataclass
+class Latest:
+    """A one-slot mailbox: writers replace the value, readers wait for a newer one (latest wins)."""
+
+    value: Any = None
+    version: int = 0
+    _cond: threading.Condition = field(default_factory=threading.Condition)
+
+    def put(self, value: Any) -> None:
+        with self._cond:
+            self.value = value
+            self.version += 1
+            self._cond.notify_all()
+
+    def get(self) -> tuple[Any, int]:
+        with self._cond:
+            return self.value, self.version
+
+    def wait_until(self, predicate: Callable[[Any], bool], timeout: float) -> Any:
+        """Wait until ``predicate(value)`` holds; returns the value, or None after ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self.value is None or not predicate(self.value):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(left)
+            return self.value
+
+    def wait_newer(self, version: int, timeout: float) -> tuple[Any, int]:
+        """Wait until the version exceeds ``version`` (or the timeout passes); return (value, version)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self.version <= version:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._cond.wait(left)
+            return self.value, self.version
