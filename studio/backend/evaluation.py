@@ -1,0 +1,268 @@
+"""`studio eval`: imitation success on (unseen) tasks, with the paper's breakdown, every rollout stored.
+
+For each rollout: a fresh scene from a seed derived from (``--seed``, task, index), a demonstration of that
+task drawn (with a seed derived the same way) from the store's expert episodes — Sawyer or human, so the agent
+(Panda) imitates another embodiment as in the paper — one planning call, execution with grasp correction,
+and up to ``--replan`` re-plans inside the same episode. Rollouts run in parallel worker processes; each is
+stored (recording as an agent episode, plans and predicted latents in its folder) and indexed in the catalog.
+
+``--checkpoint oracle`` plans from the simulator's true state instead of a model: the ceiling of the
+execution stack, reported as such.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import uuid
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from studio.data.paths import add_data_dir_argument
+
+
+@dataclass
+class EvalJob:
+    task: str
+    index: int
+    env_seed: int
+    expert_seed: int
+
+
+@dataclass
+class RolloutSummary:
+    rollout_id: str
+    task: str
+    index: int
+    seed: int
+    expert_episode_id: str
+    success: bool
+    reached: bool
+    grasped: bool
+    placed: bool
+    failure_stage: str | None
+    replans: int
+    planning_time_s: float
+    duration_s: float
+
+
+def resolve_tasks(spec: str, scene: str) -> list[str]:
+    """``held-out`` (the split's test tasks), ``train``, ``all``, or comma-separated task names."""
+    from studio.data.splits import load_split
+    from studio.sim.tasks import get_task, list_tasks
+
+    if spec in ("held-out", "test"):
+        return list(load_split(scene).test)
+    if spec == "train":
+        return list(load_split(scene).train)
+    if spec == "all":
+        return list_tasks(scene)
+    names = [t.strip() for t in spec.split(",") if t.strip()]
+    for n in names:
+        get_task(n)  # raises a clear error for unknown names
+    return names
+
+
+def make_jobs(tasks: list[str], episodes: int, seed: int) -> list[EvalJob]:
+    """Deterministic (task, index) -> scene seed and demonstration-choice seed."""
+    jobs = []
+    for t_idx, task in enumerate(tasks):
+        for i in range(episodes):
+            ss = np.random.SeedSequence([seed, t_idx, i, 0x5EED])
+            env_seed, expert_seed = (int(x) for x in ss.generate_state(2))
+            jobs.append(EvalJob(task, i, env_seed % (2**31), expert_seed))
+    return jobs
+
+
+# ---------------------------------------------------------------------------------------------- worker side
+_W: dict = {}
+
+
+def _init_worker(checkpoint: str, data_dir: str, scene: str, robot: str, threads: int) -> None:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from studio.data.store import EpisodeStore
+    from studio.sim.env import SimEnv
+
+    _W["store"] = EpisodeStore(data_dir)
+    _W["env"] = SimEnv(scene, robot)
+    if checkpoint == "oracle":
+        from studio.backend.rollout import OraclePlanner
+
+        _W["planner"] = OraclePlanner(_W["env"])
+    else:
+        import torch
+
+        torch.set_num_threads(threads)
+        from studio.model.planner import Planner
+
+        _W["planner"] = Planner.load(checkpoint)
+    _W["checkpoint"] = checkpoint
+
+
+def _expert_choices(store, task: str) -> list[str]:
+    ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=("sawyer", "human"))]
+    if not ids:
+        raise RuntimeError(f"no expert demonstration of {task!r} in the store; "
+                           f"collect some with: studio collect --robot sawyer --tasks {task}")
+    return sorted(ids)
+
+
+def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None, keep: bool) -> RolloutSummary:
+    from studio.backend.rollout import run_rollout
+    from studio.data.catalog import RolloutRecord
+
+    store, env, planner = _W["store"], _W["env"], _W["planner"]
+    choices = _expert_choices(store, job.task)
+    expert_id = choices[np.random.default_rng(job.expert_seed).integers(len(choices))]
+    expert_frames = store.load_frames(expert_id)
+    if hasattr(planner, "clear_cache"):
+        planner.clear_cache()
+    out = run_rollout(env, planner, expert_frames, job.task, job.env_seed, replans=replan)
+    rollout_id = f"r-{uuid.uuid4().hex[:12]}"
+    path = None
+    if keep:
+        folder = store.root / "rollouts" / rollout_id
+        tmp = store.root / "rollouts" / f".{rollout_id}.tmp"
+        tmp.mkdir(parents=True, exist_ok=True)
+        arrays = {f"plan{i}_waypoints_world": p.waypoints_world for i, p in enumerate(out.plans)}
+        for i, p in enumerate(out.plans):
+            if p.waypoints_cam is not None:
+                arrays[f"plan{i}_waypoints_cam"] = np.asarray(p.waypoints_cam)
+            if p.latent_states is not None:
+                arrays[f"plan{i}_latent_states"] = np.asarray(p.latent_states, dtype=np.float16)
+            if p.pooled_states is not None:
+                arrays[f"plan{i}_pooled_states"] = np.asarray(p.pooled_states, dtype=np.float32)
+        arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
+        arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
+        np.savez_compressed(tmp / "plans.npz", **arrays)
+        (tmp / "events.json").write_text(json.dumps(out.events, default=float))
+        os.replace(tmp, folder)
+        path = str(folder)
+    record = RolloutRecord(
+        id=rollout_id, task=job.task, success=out.success, checkpoint_id=checkpoint_id,
+        expert_episode_id=expert_id, robot=env.robot, seed=job.env_seed, failure_stage=out.failure_stage,
+        replans=out.replans, planning_time_s=out.planning_time_s, duration_s=out.duration_s,
+        num_steps=out.recording.num_steps, path=path, eval_id=eval_id,
+        extra={"stages": out.stages, "index": job.index},
+    )
+    store.add_rollout(record, out.recording if keep else None)
+    return RolloutSummary(rollout_id, job.task, job.index, job.env_seed, expert_id, out.success,
+                          out.stages["reached"], out.stages["grasped"], out.stages["placed"], out.failure_stage,
+                          out.replans, out.planning_time_s, out.duration_s)
+
+
+def _run_chunk(jobs: list[EvalJob], replan: int, eval_id: str, checkpoint_id: str | None, keep: bool):
+    return [_run_job(j, replan, eval_id, checkpoint_id, keep) for j in jobs]
+
+
+# ---------------------------------------------------------------------------------------------- driver side
+def summarise(rows: list[RolloutSummary]) -> dict:
+    by_task: dict[str, dict] = {}
+    for task in sorted({r.task for r in rows}):
+        rs = [r for r in rows if r.task == task]
+        by_task[task] = {
+            "rollouts": len(rs),
+            "success": float(np.mean([r.success for r in rs])),
+            "reached": float(np.mean([r.reached for r in rs])),
+            "grasped": float(np.mean([r.grasped for r in rs])),
+            "placed": float(np.mean([r.placed for r in rs])),
+            "mean_replans": float(np.mean([r.replans for r in rs])),
+            "mean_planning_ms": 1000 * float(np.mean([r.planning_time_s for r in rs])),
+            "failure_stages": {s: sum(1 for r in rs if r.failure_stage == s)
+                               for s in sorted({r.failure_stage for r in rs if r.failure_stage})},
+        }
+    return {
+        "tasks": by_task,
+        "success": float(np.mean([r.success for r in rows])) if rows else 0.0,
+        "rollouts": len(rows),
+        "mean_planning_ms": 1000 * float(np.mean([r.planning_time_s for r in rows])) if rows else 0.0,
+    }
+
+
+def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan: int = 0, workers: int = 1,
+             data_dir=None, robot: str = "panda", keep: bool = True, progress: bool = True) -> dict:
+    """Run the evaluation and return the report (also written into the catalog as rollouts)."""
+    from studio.data.paths import resolve_data_dir
+    from studio.sim.tasks import get_task
+
+    scenes = {get_task(t).scene for t in tasks}
+    if len(scenes) != 1:
+        raise ValueError(f"evaluate one scene at a time, got tasks from {sorted(scenes)}")
+    scene = scenes.pop()
+    root = str(resolve_data_dir(data_dir))
+    eval_id = f"eval-{uuid.uuid4().hex[:10]}"
+    checkpoint_id = None if checkpoint == "oracle" else Path(checkpoint).stem
+    jobs = make_jobs(tasks, episodes, seed)
+    started = time.perf_counter()
+    rows: list[RolloutSummary] = []
+    workers = max(1, min(workers, len(jobs)))
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    chunks = [jobs[i::workers] for i in range(workers)]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(jobs), desc="rollouts", unit="rollout", file=sys.stderr)
+    if workers == 1:
+        _init_worker(checkpoint, root, scene, robot, threads)
+        for job in jobs:
+            rows.append(_run_job(job, replan, eval_id, checkpoint_id, keep))
+            if bar:
+                bar.update(1)
+    else:
+        # Small chunks keep the progress bar moving while each worker keeps its env and model loaded.
+        small = [jobs[i : i + 4] for i in range(0, len(jobs), 4)]
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init_worker,
+                                 initargs=(checkpoint, root, scene, robot, threads)) as pool:
+            futures = [pool.submit(_run_chunk, c, replan, eval_id, checkpoint_id, keep) for c in small]
+            for f in as_completed(futures):
+                got = f.result()
+                rows.extend(got)
+                if bar:
+                    bar.update(len(got))
+    if bar:
+        bar.close()
+    rows.sort(key=lambda r: (r.task, r.index))
+    report = summarise(rows)
+    report.update({"eval_id": eval_id, "checkpoint": checkpoint, "robot": robot, "scene": scene, "seed": seed,
+                   "replan": replan, "episodes_per_task": episodes, "wall_s": time.perf_counter() - started,
+                   "workers": workers, "rows": [asdict(r) for r in rows]})
+    return report
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--checkpoint", required=True, help="checkpoint file, or 'oracle' for the execution ceiling")
+    parser.add_argument("--tasks", default="held-out", help="held-out | train | all | comma-separated task names")
+    parser.add_argument("--scene", default="pick_place", help="scene whose split 'held-out' refers to")
+    parser.add_argument("--episodes", type=int, default=10, help="rollouts per task")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--replan", type=int, default=0, help="re-plans allowed inside an episode on failure")
+    parser.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
+    parser.add_argument("--robot", default="panda", help="the agent robot")
+    parser.add_argument("--no-store", action="store_true", help="do not store the rollouts (catalog rows only)")
+    parser.add_argument("--json", action="store_true", help="print the full report as JSON")
+    add_data_dir_argument(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    tasks = resolve_tasks(args.tasks, args.scene)
+    report = evaluate(args.checkpoint, tasks, args.episodes, args.seed, args.replan, args.workers, args.data_dir,
+                      args.robot, keep=not args.no_store)
+    if args.json:
+        print(json.dumps(report, default=float))
+        return 0
+    print(f"eval {report['eval_id']}  checkpoint={args.checkpoint}  replan={args.replan}  "
+          f"{report['rollouts']} rollouts in {report['wall_s']:.0f} s")
+    print(f"{'task':32s} {'n':>4s} {'success':>8s} {'reached':>8s} {'grasped':>8s} {'placed':>8s} {'plan ms':>8s}")
+    for task, t in report["tasks"].items():
+        print(f"{task:32s} {t['rollouts']:4d} {t['success']:8.1%} {t['reached']:8.1%} {t['grasped']:8.1%} "
+              f"{t['placed']:8.1%} {t['mean_planning_ms']:8.1f}")
+    print(f"{'all':32s} {report['rollouts']:4d} {report['success']:8.1%}")
+    return 0

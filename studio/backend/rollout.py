@@ -1,0 +1,151 @@
+"""One imitation rollout: plan from the expert video and the agent's first frame, execute, re-plan on failure.
+
+This is where the model and the simulator meet (they never import each other). A rollout:
+
+1. resets the scene (task, seed) — once; re-planning never resets it;
+2. renders the agent's current frame and asks the planner for 5 attributed waypoints;
+3. executes them with the waypoint controller (grasp correction in pick-and-place scenes);
+4. if the task has not succeeded and re-plans remain, takes a fresh observation of the *same* episode and
+   plans again with the same demonstration.
+
+Everything needed to inspect it afterwards is returned: the recording (frames + full-rate arrays), every
+plan (waypoints in world and camera frames, the predicted latent trajectory, planning time, the tick it
+started at) and the outcome with the stage at which it failed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from studio.sim.env import SimEnv
+from studio.sim.experts import expert_waypoints
+from studio.sim.recorder import Recorder
+from studio.sim.recording import Recording
+from studio.sim.waypoints import ControllerConfig, WaypointController
+
+#: Failure stages, in the order a rollout passes them (the paper's breakdown).
+STAGES = ("reached", "grasped", "placed")
+FAILURE_NAMES = {"reached": "reach", "grasped": "grasp", "placed": "place"}
+
+
+class PlannerLike(Protocol):
+    def plan(self, expert_frames: np.ndarray, agent_frame: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray): ...
+
+
+@dataclass
+class PlanRecord:
+    """One planning call inside a rollout."""
+
+    waypoints_world: np.ndarray
+    waypoints_cam: np.ndarray | None
+    planning_time_s: float
+    start_tick: int
+    latent_states: np.ndarray | None = None
+    pooled_states: np.ndarray | None = None
+
+
+@dataclass
+class RolloutOutcome:
+    """Everything one rollout produced."""
+
+    task: str
+    seed: int
+    robot: str
+    success: bool
+    stages: dict[str, bool]
+    failure_stage: str | None
+    plans: list[PlanRecord]
+    recording: Recording
+    duration_s: float
+    events: list[tuple[str, dict]] = field(default_factory=list)
+
+    @property
+    def replans(self) -> int:
+        return max(0, len(self.plans) - 1)
+
+    @property
+    def planning_time_s(self) -> float:
+        return float(np.mean([p.planning_time_s for p in self.plans])) if self.plans else 0.0
+
+
+def failure_stage(stages: dict[str, bool]) -> str | None:
+    """The first stage not reached, or None on success."""
+    if stages.get("placed"):
+        return None
+    for s in STAGES:
+        if not stages.get(s):
+            return FAILURE_NAMES[s]
+    return "place"
+
+
+class OraclePlanner:
+    """Plans from the simulator's true state (the scripted expert's waypoints): the execution ceiling.
+
+    It ignores the images; evaluation reports it as an upper bound for what the controller can do
+    with perfect waypoints, never as a result of the model.
+    """
+
+    def __init__(self, env: SimEnv):
+        self.env = env
+
+    def plan(self, expert_frames, agent_frame, K, T_world_cam):
+        wps = expert_waypoints(self.env)
+        cam = self.env.camera_model()
+        return type("OraclePlan", (), {"waypoints_world": wps,
+                                       "waypoints_cam": np.column_stack([cam.world_to_cam(wps[:, :3]), wps[:, 3]]),
+                                       "latent_states": None, "pooled_states": None})()
+
+
+def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, task: str, seed: int, *,
+                replans: int = 0, grasp_correction: bool | None = None, n_frames: int = 30,
+                on_event: Callable[[str, dict], None] | None = None,
+                controller_config: ControllerConfig | None = None) -> RolloutOutcome:
+    """Run one rollout of ``task`` from ``seed`` on ``env`` imitating ``expert_frames`` (N, H, W, 3) uint8."""
+    started = time.perf_counter()
+    env.reset(task, seed)
+    events: list[tuple[str, dict]] = []
+
+    def event(kind: str, info: dict) -> None:
+        events.append((kind, info))
+        if on_event is not None:
+            on_event(kind, info)
+
+    recorder = Recorder(env)
+    recorder.tick()
+    cfg = controller_config or ControllerConfig()
+    if grasp_correction is not None:
+        cfg.grasp_correction = grasp_correction
+    elif env.scene != "pick_place":
+        cfg.grasp_correction = False  # grasp correction centres over objects: only meaningful for grasps
+    controller = WaypointController(env, cfg, on_tick=recorder.tick, on_event=event)
+    plans: list[PlanRecord] = []
+    for attempt in range(replans + 1):
+        if attempt:
+            event("replanning", {"attempt": attempt, "of": replans})
+        frame = env.render("external")
+        cam = env.camera_model("external")
+        event("planning", {"attempt": attempt})
+        t0 = time.perf_counter()
+        result = planner.plan(expert_frames, frame, cam.K, cam.T_world_cam)
+        dt = time.perf_counter() - t0
+        wps = np.asarray(result.waypoints_world, dtype=np.float64)
+        plans.append(PlanRecord(
+            waypoints_world=wps, waypoints_cam=getattr(result, "waypoints_cam", None), planning_time_s=dt,
+            start_tick=env.steps, latent_states=getattr(result, "latent_states", None),
+            pooled_states=getattr(result, "pooled_states", None)))
+        event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
+        controller.execute(wps)
+        if env.success():
+            break
+    stages = {k: bool(v) for k, v in env.stages().items()}
+    outcome_stage = failure_stage(stages)
+    event("outcome", {"success": stages["placed"], "failure_stage": outcome_stage})
+    recording = recorder.finish(n_frames=n_frames, success=stages["placed"])
+    return RolloutOutcome(task=task, seed=int(seed), robot=env.robot, success=stages["placed"], stages=stages,
+                          failure_stage=outcome_stage, plans=plans, recording=recording,
+                          duration_s=time.perf_counter() - started, events=events)
