@@ -204,7 +204,6 @@ def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan
     rows: list[RolloutSummary] = []
     workers = max(1, min(workers, len(jobs)))
     threads = max(1, (os.cpu_count() or 1) // workers)
-    chunks = [jobs[i::workers] for i in range(workers)]
     bar = None
     if progress:
         from tqdm import tqdm
