@@ -1,0 +1,76 @@
+"""The world model 𝒲: r_{i+1} = 𝒲(r_i, a_i, …, r_1, a_1).
+
+Each step's token is the state and its latent action concatenated along the features ([state ‖ action], 2C×H×W)
+and projected by one dense linear layer to the model width — the whole map is one token, as in the paper and the
+reference code. A fixed temporal sin/cos code is added (the reference learns a 30-slot table; the fixed code has no
+length limit), the tokens go through a causal transformer (1 block, 4 heads in the paper), and the output at the
+last step is projected by a second dense layer back to C×H×W: the next state, unconstrained (no activation),
+since it is only read through the spatial softmax. Sizes follow from the state shape probed from the encoder,
+never from a hard-coded map size. Maps are flattened in (H, W, C) order, which is a free view of the encoder's
+channels-last output. Steps are fed one at a time on top of a key/value cache.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from studio.model.pooling import sinusoidal_encoding
+from studio.model.transformer import CausalTransformer, KVCache
+
+
+class WorldModel(nn.Module):
+    """𝒲 over states shaped ``state_shape``: (C, H, W) maps or (D,) vectors."""
+
+    def __init__(
+        self,
+        state_shape: tuple[int, ...],
+        width: int,
+        blocks: int,
+        heads: int,
+        mlp_dim: int,
+        dropout: float = 0.0,
+    ) -> None:
+        super().__init__()
+        if len(state_shape) not in (1, 3):
+            raise ValueError(f"WorldModel state_shape must be (C, H, W) or (D,), got {state_shape}")
+        self.state_shape = tuple(state_shape)
+        size = math.prod(state_shape)
+        self.embed = nn.Linear(2 * size, width)
+        self.embed_drop = nn.Dropout(dropout)
+        self.transformer = CausalTransformer(width, blocks, heads, width, mlp_dim, 0.0)
+        self.out = nn.Linear(width, size)
+
+    def _flat(self, x: torch.Tensor) -> torch.Tensor:
+        """(…, *state_shape) → (…, size) in (H, W, C) order for maps."""
+        if len(self.state_shape) == 3:
+            x = x.movedim(-3, -1)
+        return x.reshape(*x.shape[: x.ndim - len(self.state_shape)], -1)
+
+    def _unflat(self, y: torch.Tensor) -> torch.Tensor:
+        if len(self.state_shape) == 3:
+            c, h, w = self.state_shape
+            return y.reshape(*y.shape[:-1], h, w, c).movedim(-1, -3)
+        return y.reshape(*y.shape[:-1], *self.state_shape)
+
+    def _tokens(self, states: torch.Tensor, actions: torch.Tensor, first_step: int) -> torch.Tensor:
+        """(B, T, *state_shape) ×2 → (B, T, 1, width)."""
+        tokens = self.embed(torch.cat([self._flat(states), self._flat(actions)], dim=-1))
+        steps = torch.arange(first_step, first_step + tokens.shape[1], device=tokens.device)
+        tokens = tokens + sinusoidal_encoding(steps, tokens.shape[-1]).to(tokens.dtype)[None]
+        return self.embed_drop(tokens).unsqueeze(2)
+
+    def step(
+        self, state: torch.Tensor, action: torch.Tensor, cache: KVCache | None
+    ) -> tuple[torch.Tensor, KVCache]:
+        """The next state (B, *state_shape) from the current state and action and the cache of earlier steps."""
+        first = 0 if cache is None else cache.frames
+        out, cache = self.transformer(self._tokens(state.unsqueeze(1), action.unsqueeze(1), first), cache)
+        return self._unflat(self.out(out[:, 0, 0])), cache
+
+    def forward(self, states: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """Predicted next states at every step of full (B, T, …) sequences (one causal pass, no cache)."""
+        out, _ = self.transformer(self._tokens(states, actions, 0))
+        return self._unflat(self.out(out[:, :, 0]))

@@ -1,0 +1,41 @@
+"""The world model 𝒲: shapes, causality and cached steps."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from studio.model.world_model import WorldModel
+
+torch.set_num_threads(1)
+
+
+@pytest.mark.parametrize("state_shape", [(6, 3, 5), (10,)])
+def test_steps_with_cache_equal_the_full_causal_pass(state_shape):
+    torch.manual_seed(0)
+    wm = WorldModel(state_shape, width=16, blocks=1, heads=4, mlp_dim=32).eval()
+    states = torch.randn(2, 4, *state_shape)
+    actions = torch.randn(2, 4, *state_shape)
+    full = wm(states, actions)
+    assert full.shape == (2, 4, *state_shape)
+    cache = None
+    for i in range(4):
+        nxt, cache = wm.step(states[:, i], actions[:, i], cache)
+        assert torch.allclose(nxt, full[:, i], atol=1e-5)
+
+
+def test_prediction_at_a_step_ignores_later_steps():
+    torch.manual_seed(0)
+    wm = WorldModel((4, 2, 3), width=16, blocks=1, heads=2, mlp_dim=16).eval()
+    states, actions = torch.randn(1, 5, 4, 2, 3), torch.randn(1, 5, 4, 2, 3)
+    out = wm(states, actions)
+    states2 = states.clone()
+    states2[:, 3:] += torch.randn(1, 2, 4, 2, 3)
+    out2 = wm(states2, actions)
+    assert torch.allclose(out[:, :3], out2[:, :3], atol=1e-6)
+    assert not torch.allclose(out[:, 3], out2[:, 3])
+
+
+def test_layer_sizes_follow_the_state_shape():
+    wm = WorldModel((512, 8, 10), width=512, blocks=1, heads=4, mlp_dim=2048)
+    assert wm.embed.in_features == 2 * 512 * 80 and wm.out.out_features == 512 * 80
