@@ -14,6 +14,10 @@ import sys
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("studio.bench", "run a benchmark and print one JSON object"),
+    "collect": ("studio.data.collect", "collect scripted expert/agent episodes in parallel (resumable)"),
+    "import-video": ("studio.data.video_import", "store a human demonstration video as an expert episode"),
+    "export": ("studio.data.export_command", "export episodes as a LeRobot v3.0 dataset"),
+    "import": ("studio.data.import_command", "import trajectories from a LeRobot v3.0 dataset"),
     "serve": ("studio.ui.serve", "start the browser studio and print its URL"),
 }
 
