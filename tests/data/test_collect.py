@@ -104,3 +104,32 @@ def test_two_workers(tmp_path):
     result = collect(cfg)
     assert result.made == 4 and not result.errors
     assert sorted(m.collect_index for m in EpisodeStore(tmp_path).episodes()) == [0, 1, 2, 3]
+
+
+def test_cli(tmp_path, capsys):
+    from studio.cli import main
+
+    argv = [
+        "collect",
+        "--robot",
+        "panda",
+        "--tasks",
+        TASK,
+        "--episodes",
+        "1",
+        "--image-size",
+        "48",
+        "64",
+        "--data-dir",
+        str(tmp_path),
+        "--no-progress",
+    ]
+    assert main(argv) == 0
+    assert "collected 1 episodes" in capsys.readouterr().out
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "collected 0 episodes" in out and "1 were already present" in out
+    (meta,) = EpisodeStore(tmp_path).episodes()
+    assert (meta.embodiment, meta.role) == ("panda", "agent")
+    assert main([*argv[:4], "pick_place/cube->purple", *argv[5:]]) == 2
+    assert "unknown task" in capsys.readouterr().err
