@@ -18,7 +18,9 @@ from data_fixtures import make_recording
 
 from studio.data.catalog import RolloutRecord
 from studio.data.episode import ARRAYS_FILE, FRAMES_FILE, Episode
+from studio.data.splits import SplitSpec
 from studio.data.store import EpisodeStore, StoreError
+from studio.data.training_view import PairDataset
 from studio.sim.recording import ARRAY_FIELDS
 
 HERE = Path(__file__).resolve().parent
@@ -26,10 +28,16 @@ REPO = HERE.parents[1]
 
 
 def _assert_consistent(store: EpisodeStore) -> None:
-    """Every catalogued episode loads completely."""
-    for meta in store.episodes():
+    """Every catalogued episode loads completely, and the training view builds and yields samples."""
+    metas = store.episodes()
+    for meta in metas:
         ep = store.load(meta.id)
         assert len(ep.frames) == meta.num_frames
+    spec = SplitSpec("pick_place", train=("pick_place/cube->red",), test=(), val_fraction=0.0)
+    ds = PairDataset(store, image_size=(24, 32), split_spec=spec, expert_roles=("agent",))
+    assert len(ds) == len(metas) ** 2
+    if len(ds):
+        assert ds[len(ds) - 1]["agent_frames"].shape == (6, 3, 24, 32)
 
 
 def test_round_trip_every_field(tmp_path):
