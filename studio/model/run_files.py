@@ -1,0 +1,67 @@
+"""Run-directory bookkeeping shared by the training loops: atomic files, JSONL metrics, seeds, cancellation.
+
+* ``atomic_save`` / ``write_json``: write to a temporary file and rename, so a kill never leaves a torn file.
+* ``append_jsonl`` / ``trim_metrics``: one JSON object per line; on resume, records of steps the checkpoint does
+  not contain (work of a killed run) and lines cut short by the kill are dropped.
+* ``step_seed``: the seed of optimiser step τ on a rank, so a resumed run draws the same randomness.
+* ``is_cancelled``: polls a cancellation flag — a callable returning bool or an object with ``is_set()``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+
+def atomic_save(obj: Any, path: Path) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def write_json(path: Path, obj: Any) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True))
+    os.replace(tmp, path)
+
+
+def append_jsonl(path: Path, record: dict[str, Any]) -> None:
+    with open(path, "a") as f:
+        f.write(json.dumps(record, sort_keys=True) + "\n")
+
+
+def trim_metrics(path: Path, step: int) -> None:
+    """Keep only the records of steps ≤ ``step``; ``step == 0`` starts a fresh file."""
+    if not path.exists():
+        return
+    if step == 0:
+        path.unlink()
+        return
+    kept = []
+    for line in path.read_text().splitlines():
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if rec.get("step", 0) <= step:
+            kept.append(line)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text("".join(k + "\n" for k in kept))
+    os.replace(tmp, path)
+
+
+def step_seed(seed: int, step: int, rank: int = 0) -> int:
+    return int(np.random.SeedSequence([seed, step, rank]).generate_state(1, dtype=np.uint64)[0] % (2**63))
+
+
+def is_cancelled(cancel: Any) -> bool:
+    if cancel is None:
+        return False
+    if hasattr(cancel, "is_set"):
+        return bool(cancel.is_set())
+    return bool(cancel())

@@ -1,0 +1,415 @@
+"""The OSVI-WM training loop: one function, ``train``, used by `studio train`, the job worker and the tests.
+
+Per optimiser step: a deterministic batch of pairs (``BatchPlan``) → augmentation and mixup on the model side
+(``augment``) → forward with world-model targets → 𝓛 = 𝓛_sdtw + α(τ)·𝓛_wm → backward, gradient-norm clipping,
+AdamW, one-cycle learning rate (2e-4 → 2e-7). Every random choice of step τ derives from (seed, τ, rank), so a
+run killed at any point and resumed from its last checkpoint continues exactly where it stopped.
+
+Outputs in the run directory:
+
+* ``config.json`` — the full ``RunConfig``, the dataset fingerprint and its task list;
+* ``last.pt`` — the latest checkpoint (model, optimiser, scheduler, step, config, dataset fingerprint), written
+  atomically every ``checkpoint_every`` steps, on cancellation and at the end; ``best.pt`` — the checkpoint with the
+  lowest validation waypoint loss;
+* ``metrics.jsonl`` — one JSON object per line: training records (step, epoch, loss, loss_sdtw, loss_wm, alpha,
+  lr, grad_norm, samples_per_s), validation records (``"split": "val"``) and events (start, resume, end).
+
+Validation runs on *held-out episodes of the training tasks* (the dataset's validation split), without augmentation
+or mixup, in eval mode — never on test tasks, unlike the reference code's model selection.
+
+Long-running use: ``progress`` is called after every step with a dict (step, total_steps, loss, lr,
+samples_per_s, eta_s); ``cancel`` (a callable returning bool, or anything with ``is_set()``) is polled every
+step and stops the run after a checkpoint. A tqdm bar is shown on the terminal unless disabled.
+
+Distributed data parallel: started under ``torchrun`` (``WORLD_SIZE`` > 1 in the environment) the loop joins a
+process group (gloo on CPU, NCCL on CUDA), each rank takes a contiguous slice of every global batch, DDP averages
+the gradients, and rank 0 alone writes files and validates.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch.utils.data import DataLoader
+
+from studio.model.augment import augment_batch
+from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, expert_indices_of
+from studio.model.config import RunConfig
+from studio.model.losses import alpha as alpha_at
+from studio.model.losses import waypoint_errors, waypoint_loss, world_model_loss
+from studio.model.osvi_wm import OSVIWM
+from studio.model.run_files import (
+    append_jsonl,
+    atomic_save,
+    is_cancelled,
+    step_seed,
+    trim_metrics,
+    write_json,
+)
+
+CHECKPOINT_FORMAT = "osvi-wm-checkpoint/1"
+# TrainConfig fields that may change when a run is resumed (they do not change what is computed).
+_RESUMABLE_CHANGES = {"val_every", "val_batches", "checkpoint_every", "log_every", "num_workers"}
+
+
+@dataclass
+class TrainResult:
+    """How a call to ``train`` ended."""
+
+    status: str  # "finished" or "cancelled"
+    step: int
+    total_steps: int
+    out_dir: Path
+    best_val_loss: float | None
+    last_record: dict[str, Any]
+
+
+class CheckpointMismatch(RuntimeError):
+    """The run directory holds a checkpoint of a different configuration or dataset."""
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def learning_rate_factor(step: int, total: int, warmup: float, lr_max: float, lr_final: float) -> float:
+    """One-cycle schedule as a multiple of lr_max: optional linear warm-up from 1/25, then cosine to lr_final."""
+    warm = round(warmup * total)
+    if step < warm:
+        return 1 / 25 + (1 - 1 / 25) * step / max(warm, 1)
+    progress = min((step - warm) / max(total - warm - 1, 1), 1.0)
+    final = lr_final / lr_max
+    return final + (1 - final) * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+def _dist_info() -> tuple[int, int]:
+    if dist.is_available() and dist.is_initialized():
+        return dist.get_world_size(), dist.get_rank()
+    return int(os.environ.get("WORLD_SIZE", "1")), int(os.environ.get("RANK", "0"))
+
+
+def _config_differences(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
+    diffs = []
+    for section in ("model", "train"):
+        for key in sorted(set(saved.get(section, {})) | set(current[section])):
+            a, b = saved.get(section, {}).get(key), current[section].get(key)
+            if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+                a, b = list(a), list(b)
+            if a != b and not (section == "train" and key in _RESUMABLE_CHANGES):
+                diffs.append(f"{section}.{key}: checkpoint {a!r} vs now {b!r}")
+    return diffs
+
+
+def median_path_depth(source: PairSource, samples: int = 64) -> float:
+    """Median camera depth of the ground-truth paths of up to ``samples`` evenly spread pairs."""
+    idx = np.unique(np.linspace(0, len(source) - 1, min(samples, len(source))).round().astype(int))
+    depths = np.concatenate([np.asarray(source[int(i)]["path"])[:, 2] for i in idx])
+    return float(np.median(depths))
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Read a checkpoint written by ``train`` and check its format."""
+    ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path} is not an OSVI-WM checkpoint (format {CHECKPOINT_FORMAT})")
+    return ckpt
+
+
+def model_from_checkpoint(ckpt: dict[str, Any], device: str | torch.device = "cpu") -> OSVIWM:
+    run = RunConfig.from_dict(ckpt["config"])
+    model = OSVIWM(run.model)
+    model.load_state_dict(ckpt["model"])
+    return model.to(device)
+
+
+# ---------------------------------------------------------------------------------------------- one step
+def compute_losses(
+    model: torch.nn.Module,
+    core: OSVIWM,
+    batch: Batch,
+    run: RunConfig,
+    step: int,
+    total: int,
+    generator: torch.Generator | None,
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """Forward one batch (augmented when ``generator`` is given) and return the total loss and its parts."""
+    cfg = run.train
+    if generator is not None:
+        with torch.no_grad():
+            aug = augment_batch(
+                batch.expert_frames, batch.agent_frames, batch.K, batch.expert_ids, batch.expert_tasks,
+                batch.agent_tasks, cfg, generator,
+            )  # fmt: skip
+        expert, agent, K = aug.expert_frames, aug.agent_frames, aug.K
+    else:
+        expert, agent, K = batch.expert_frames, batch.agent_frames, batch.K
+    a = alpha_at(step, total, cfg)
+    use_wm = cfg.wm_loss and core.world_model is not None
+    mode = ("detached" if cfg.stop_gradient else "grad") if use_wm else "none"
+    dtype = torch.bfloat16 if cfg.precision == "bf16" else None
+    with torch.autocast(device_type=agent.device.type, dtype=dtype, enabled=dtype is not None):
+        out = model(expert, agent, batch.expert_ids, targets=mode)
+    decoded = core.decode_waypoints(out.waypoints.float(), K)
+    loss_sdtw, per_set = waypoint_loss(
+        decoded["position"], decoded["gripper"], batch.path, cfg, core.cfg.max_waypoints
+    )
+    loss = loss_sdtw
+    parts = {"loss_sdtw": float(loss_sdtw.detach()), "alpha": a}
+    if out.target_pooled is not None:
+        loss_wm = world_model_loss(out.pooled, out.target_pooled)
+        loss = loss + a * loss_wm
+        parts["loss_wm"] = float(loss_wm.detach())
+    parts["loss"] = float(loss.detach())
+    for n, v in enumerate(per_set.tolist(), start=1):
+        parts[f"loss_set{n}"] = v
+    errors = waypoint_errors(decoded["position"].detach(), batch.path, core.cfg.max_waypoints)
+    parts["final_err_m"] = float(errors["final"].mean())
+    parts["path_err_m"] = float(errors["path"].mean())
+    return loss, parts
+
+
+@torch.no_grad()
+def validate(
+    core: OSVIWM, source: PairSource, run: RunConfig, step: int, total: int, device: torch.device
+) -> dict:
+    """Mean losses and errors over ``val_batches`` evenly spread batches of ``source`` (eval mode, no augment)."""
+    cfg = run.train
+    bs = min(cfg.batch_size, len(source))
+    n_batches = len(source) // bs
+    if cfg.val_batches > 0:
+        n_batches = min(n_batches, cfg.val_batches)
+    starts = np.linspace(0, len(source) - bs, n_batches).round().astype(int)
+    was_training = core.training
+    core.eval()
+    totals: dict[str, float] = {}
+    try:
+        for s in starts:
+            samples = [source[int(i)] for i in range(s, s + bs)]
+            batch = collate_pairs(
+                samples, core.cfg.image_size, core.cfg.n_expert_frames, core.cfg.n_agent_frames
+            )
+            _, parts = compute_losses(core, core, batch.to(device), run, step, total, None)
+            for k, v in parts.items():
+                totals[k] = totals.get(k, 0.0) + v / len(starts)
+    finally:
+        core.train(was_training)
+    return {f"val_{k}" if k != "alpha" else k: v for k, v in totals.items()}
+
+
+# ---------------------------------------------------------------------------------------------- the loop
+def train(
+    run: RunConfig,
+    train_set: PairSource,
+    val_set: PairSource | None,
+    out_dir: str | Path,
+    *,
+    device: str | torch.device = "cpu",
+    progress: Callable[[dict[str, Any]], None] | None = None,
+    cancel: Any = None,
+    show_progress: bool = True,
+    resume: bool = True,
+) -> TrainResult:
+    """Train (or resume training of) OSVI-WM on ``train_set``; see the module docstring for the outputs."""
+    cfg = run.train
+    device = torch.device(device)
+    out = Path(out_dir)
+    world, rank = _dist_info()
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    if cfg.batch_size % world:
+        raise ValueError(
+            f"batch_size {cfg.batch_size} is not divisible by the {world} data-parallel processes"
+        )
+    main = rank == 0
+    if main:
+        out.mkdir(parents=True, exist_ok=True)
+
+    torch.manual_seed(cfg.seed)
+    model = OSVIWM(run.model).to(device)
+    plan = BatchPlan(
+        len(train_set),
+        cfg.batch_size,
+        cfg.seed,
+        expert_indices_of(train_set),
+        cfg.pairs_per_expert,
+    )
+    per_epoch = plan.batches_per_epoch
+    total = cfg.max_steps if cfg.max_steps > 0 else max(1, math.ceil(cfg.epochs * per_epoch))
+    decay = [p for n, p in model.named_parameters() if p.ndim >= 2]
+    no_decay = [p for n, p in model.named_parameters() if p.ndim < 2]
+    optimizer = torch.optim.AdamW(
+        [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
+        lr=cfg.lr_max,
+    )
+    scheduler = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda s: learning_rate_factor(s, total, cfg.lr_warmup, cfg.lr_max, cfg.lr_final)
+    )
+    fingerprint = train_set.fingerprint()
+    ckpt_path = out / "last.pt"
+    start_step, best_val = 0, None
+    if resume and ckpt_path.exists():
+        ckpt = load_checkpoint(ckpt_path, device)
+        diffs = _config_differences(ckpt["config"], run.to_dict())
+        if diffs:
+            raise CheckpointMismatch(
+                f"{ckpt_path} was trained with another configuration ({'; '.join(diffs)}); use another --out "
+                "directory or --restart"
+            )
+        if ckpt["dataset_fingerprint"] != fingerprint:
+            raise CheckpointMismatch(
+                f"{ckpt_path} was trained on dataset {ckpt['dataset_fingerprint']}, this dataset is {fingerprint}; "
+                "use another --out directory or --restart"
+            )
+        model.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        scheduler.load_state_dict(ckpt["scheduler"])
+        start_step, best_val = int(ckpt["step"]), ckpt.get("best_val_loss")
+    else:
+        model.set_depth_prior(median_path_depth(train_set))
+    metrics_path = out / "metrics.jsonl"
+    if main:
+        write_json(out / "config.json", {"config": run.to_dict(), "dataset_fingerprint": fingerprint,
+                                          "tasks": list(train_set.tasks)})  # fmt: skip
+        trim_metrics(metrics_path, start_step)
+        append_jsonl(metrics_path, {"event": "resume" if start_step else "start", "step": start_step,
+                               "total_steps": total, "world_size": world, "time": time.time()})  # fmt: skip
+
+    core = model
+    if world > 1:
+        model = torch.nn.parallel.DistributedDataParallel(model)
+
+    def checkpoint(step: int, name: str = "last.pt") -> None:
+        if main:
+            atomic_save(
+                {
+                    "format": CHECKPOINT_FORMAT,
+                    "config": run.to_dict(),
+                    "dataset_fingerprint": fingerprint,
+                    "tasks": list(train_set.tasks),
+                    "step": step,
+                    "total_steps": total,
+                    "best_val_loss": best_val,
+                    "model": core.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "scheduler": scheduler.state_dict(),
+                    "torch_version": torch.__version__,
+                    "time": time.time(),
+                },
+                out / name,
+            )
+
+    per_rank = cfg.batch_size // world
+    collate = _Collate(run)
+
+    def batches_from(step: int):
+        while step < total:
+            epoch, offset = divmod(step, per_epoch)
+            chunks = [b[rank * per_rank : (rank + 1) * per_rank] for b in plan.epoch(epoch)[offset:]]
+            chunks = chunks[: total - step]
+            if hasattr(train_set, "set_epoch"):
+                train_set.set_epoch(epoch)
+            loader = DataLoader(
+                train_set, batch_sampler=chunks, collate_fn=collate, num_workers=cfg.num_workers,
+                worker_init_fn=_seed_worker,
+            )  # fmt: skip
+            for batch in loader:
+                yield step, batch
+                step += 1
+
+    bar = None
+    if show_progress and main:
+        from tqdm import tqdm
+
+        bar = tqdm(
+            total=total, initial=start_step, desc="train", unit="step", file=sys.stderr, dynamic_ncols=True
+        )
+    status, step, record = "finished", start_step, {}
+    window_start, window_pairs, window_steps, sums = time.perf_counter(), 0, 0, {}
+    run_start, run_start_step = time.perf_counter(), start_step
+    model.train()
+    try:
+        for step, batch in batches_from(start_step):
+            seed = step_seed(cfg.seed, step, rank)
+            torch.manual_seed(seed)
+            g = torch.Generator().manual_seed(seed)
+            loss, parts = compute_losses(model, core, batch.to(device), run, step, total, g)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(
+                core.parameters(), cfg.grad_clip if cfg.grad_clip > 0 else float("inf")
+            )
+            optimizer.step()
+            lr = optimizer.param_groups[0]["lr"]
+            scheduler.step()
+            done = step + 1
+            window_pairs += batch.size * world
+            window_steps += 1
+            for k, v in parts.items():
+                sums[k] = sums.get(k, 0.0) + v
+            sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
+            if done % cfg.log_every == 0 or done == total:
+                elapsed = time.perf_counter() - window_start
+                record = {"step": done, "epoch": round(done / per_epoch, 4), "lr": lr,
+                          "samples_per_s": window_pairs / max(elapsed, 1e-9)}  # fmt: skip
+                record.update({k: v / window_steps for k, v in sums.items()})
+                if main:
+                    append_jsonl(metrics_path, record)
+                window_start, window_pairs, window_steps, sums = time.perf_counter(), 0, 0, {}
+            if val_set is not None and (done % cfg.val_every == 0 or done == total):
+                if main:
+                    val = validate(core, val_set, run, done, total, device)
+                    append_jsonl(metrics_path, {"step": done, "split": "val", **val})
+                    if best_val is None or val["val_loss_sdtw"] < best_val:
+                        best_val = val["val_loss_sdtw"]
+                        checkpoint(done, "best.pt")
+                if world > 1:
+                    dist.barrier()
+            rate = (done - run_start_step) / max(time.perf_counter() - run_start, 1e-9)
+            info = {"step": done, "total_steps": total, "epoch": done / per_epoch, "loss": parts["loss"], "lr": lr,
+                    "samples_per_s": rate * cfg.batch_size, "eta_s": (total - done) / max(rate, 1e-9)}  # fmt: skip
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{parts['loss']:.4f}", lr=f"{lr:.2e}")
+            if progress is not None and main:
+                progress(info)
+            stop = is_cancelled(cancel)
+            if world > 1:
+                flag = torch.tensor([1.0 if stop else 0.0])
+                dist.all_reduce(flag)
+                stop = bool(flag.item() > 0)
+            if done % cfg.checkpoint_every == 0 or done == total or stop:
+                checkpoint(done)
+            step = done
+            if stop:
+                status = "cancelled"
+                break
+    finally:
+        if bar is not None:
+            bar.close()
+    if main:
+        append_jsonl(metrics_path, {"event": "end", "status": status, "step": step, "time": time.time()})
+    return TrainResult(status, step, total, out, best_val, record)
+
+
+def _seed_worker(worker_id: int) -> None:
+    """Give numpy in each DataLoader worker a seed derived from torch's (itself derived from the step seed)."""
+    np.random.seed(torch.initial_seed() % (2**32))  # noqa: NPY002 - datasets may use numpy's global RNG
+
+
+class _Collate:
+    """Picklable collate function bound to the model's input size and frame counts."""
+
+    def __init__(self, run: RunConfig) -> None:
+        self.size = tuple(run.model.image_size)
+        self.n_expert = run.model.n_expert_frames
+        self.n_agent = run.model.n_agent_frames
+
+    def __call__(self, samples: list[dict[str, Any]]) -> Batch:
+        return collate_pairs(samples, self.size, self.n_expert, self.n_agent)

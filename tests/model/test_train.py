@@ -1,0 +1,196 @@
+"""The training loop on synthetic pairs: loss decreases, ablations train, kill → resume, cancellation, DDP."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from synthetic_pairs import SyntheticPairs, tiny_run_config
+
+from studio.model.train import CheckpointMismatch, learning_rate_factor, load_checkpoint, train
+
+torch.set_num_threads(1)
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parents[1]
+NO_AUG = dict(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, brightness=0.0, contrast=0.0, saturation=0.0,
+              hue=0.0, mixup=False)  # fmt: skip
+
+
+def records(run_dir: Path) -> list[dict]:
+    return [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_one_cycle_schedule_goes_from_max_to_final():
+    f = [learning_rate_factor(s, 100, 0.0, 2e-4, 2e-7) for s in range(100)]
+    assert f[0] == pytest.approx(1.0) and f[-1] * 2e-4 == pytest.approx(2e-7)
+    assert all(a >= b for a, b in itertools.pairwise(f))
+    warm = [learning_rate_factor(s, 100, 0.1, 2e-4, 2e-7) for s in range(100)]
+    assert warm[0] == pytest.approx(1 / 25) and max(warm) == pytest.approx(1.0)
+
+
+def test_tiny_training_run_decreases_the_loss_and_writes_its_run_directory(tmp_path):
+    data = SyntheticPairs(n_tasks=2, episodes_per_task=2)
+    run = tiny_run_config(max_steps=30, lr_max=3e-3, val_every=15, log_every=1, **NO_AUG)
+    result = train(run, data, SyntheticPairs(n_tasks=2, episodes_per_task=2, split="val"), tmp_path,
+                   show_progress=False)  # fmt: skip
+    assert result.status == "finished" and result.step == 30
+    recs = [r for r in records(tmp_path) if "loss_sdtw" in r]
+    first = sum(r["loss_sdtw"] for r in recs[:5]) / 5
+    last = sum(r["loss_sdtw"] for r in recs[-5:]) / 5
+    assert last < 0.6 * first, (first, last)
+    assert all({"lr", "samples_per_s", "loss_wm", "alpha", "grad_norm"} <= r.keys() for r in recs)
+    assert [r["step"] for r in records(tmp_path) if r.get("split") == "val"] == [15, 30]
+    ckpt = load_checkpoint(tmp_path / "last.pt")
+    assert ckpt["step"] == 30 and ckpt["dataset_fingerprint"] == data.fingerprint()
+    assert ckpt["config"] == run.to_dict() and ckpt["tasks"] == data.tasks
+    assert (tmp_path / "best.pt").exists() and json.loads((tmp_path / "config.json").read_text())["tasks"]
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        ["model.world_model=false"],
+        ["train.wm_loss=false"],
+        ["train.stop_gradient=false"],
+        ["model.pool_before_wm=true"],
+        ["model.single_step=true"],
+        ['train.precision="bf16"', 'train.alpha_schedule="exponential"'],
+    ],
+)
+def test_each_ablation_switch_builds_and_trains_a_step(tmp_path, overrides):
+    run = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(overrides)
+    before = train(run.with_overrides(["train.max_steps=1"]), SyntheticPairs(), None, tmp_path / "a",
+                   show_progress=False)  # fmt: skip
+    assert before.step == 1
+    result = train(run, SyntheticPairs(), None, tmp_path / "b", show_progress=False)
+    rec = [r for r in records(tmp_path / "b") if "loss" in r]
+    assert result.step == 2 and all(torch.isfinite(torch.tensor(r["loss"])) for r in rec)
+    has_wm = "loss_wm" in rec[-1]
+    assert has_wm == (run.model.world_model and run.train.wm_loss)
+
+
+KILLED_RUN = """
+import sys, time
+sys.path.insert(0, {here!r})
+import torch
+torch.set_num_threads(1)
+from synthetic_pairs import SyntheticPairs, tiny_run_config
+from studio.model.train import train
+
+def progress(info):
+    if info["step"] == 4:
+        open({marker!r}, "w").write("step 4 done")
+        time.sleep(120)
+
+train(tiny_run_config(max_steps=7, checkpoint_every=3, val_every=100), SyntheticPairs(), None, {out!r},
+      progress=progress, show_progress=False)
+"""
+
+
+def test_checkpoint_then_sigkill_then_resume_continues_from_the_same_step(tmp_path):
+    out, marker = tmp_path / "killed", tmp_path / "marker"
+    script = tmp_path / "killed_run.py"
+    script.write_text(KILLED_RUN.format(here=str(HERE), marker=str(marker), out=str(out)))
+    proc = subprocess.Popen([sys.executable, str(script)], cwd=REPO)
+    try:
+        deadline = time.time() + 240
+        while not marker.exists():
+            assert proc.poll() is None, "the training subprocess died before step 4"
+            assert time.time() < deadline, "the training subprocess did not reach step 4"
+            time.sleep(0.2)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    assert load_checkpoint(out / "last.pt")["step"] == 3
+    assert max(r.get("step", 0) for r in records(out)) == 4  # logged, but not checkpointed
+
+    run = tiny_run_config(max_steps=7, checkpoint_every=3, val_every=100)
+    resumed = train(run, SyntheticPairs(), None, out, show_progress=False)
+    assert resumed.step == 7
+    steps = [r["step"] for r in records(out) if "loss" in r]
+    assert steps == [1, 2, 3, 4, 5, 6, 7]  # step 4 of the killed run was replaced, nothing repeated
+    assert next(r for r in records(out) if r.get("event") == "resume")["step"] == 3
+
+    straight = train(run, SyntheticPairs(), None, tmp_path / "straight", show_progress=False)
+    assert straight.step == 7
+    a = load_checkpoint(out / "last.pt")["model"]
+    b = load_checkpoint(tmp_path / "straight" / "last.pt")["model"]
+    for k in a:
+        assert torch.allclose(a[k].float(), b[k].float(), atol=1e-5), k
+
+
+def test_resume_refuses_another_configuration_or_dataset(tmp_path):
+    run = tiny_run_config(max_steps=1, batch_size=4, val_every=100)
+    train(run, SyntheticPairs(), None, tmp_path, show_progress=False)
+    with pytest.raises(CheckpointMismatch, match="lr_max"):
+        train(run.with_overrides(["train.lr_max=0.1"]), SyntheticPairs(), None, tmp_path, show_progress=False)
+    with pytest.raises(CheckpointMismatch, match="dataset"):
+        train(run, SyntheticPairs(seed=5), None, tmp_path, show_progress=False)
+    restarted = train(run, SyntheticPairs(seed=5), None, tmp_path, show_progress=False, resume=False)
+    assert restarted.step == 1
+
+
+def test_cancellation_checkpoints_and_stops_and_progress_is_reported(tmp_path):
+    seen = []
+    result = train(
+        tiny_run_config(max_steps=10, batch_size=4, val_every=100), SyntheticPairs(), None, tmp_path,
+        progress=seen.append, cancel=lambda: len(seen) >= 2, show_progress=False,
+    )  # fmt: skip
+    assert result.status == "cancelled" and result.step == 2
+    assert [p["step"] for p in seen] == [1, 2] and all(p["total_steps"] == 10 for p in seen)
+    assert load_checkpoint(tmp_path / "last.pt")["step"] == 2
+
+
+def test_two_process_gloo_ddp_trains_in_lockstep(tmp_path):
+    out = tmp_path / "ddp"
+    script = tmp_path / "ddp_run.py"
+    script.write_text(
+        textwrap.dedent(
+            f"""
+            import sys
+            sys.path.insert(0, {str(HERE)!r})
+            import torch
+            import torch.distributed as dist
+            torch.set_num_threads(1)
+            from synthetic_pairs import SyntheticPairs, tiny_run_config
+            import studio.model.train as T
+
+            captured = {{}}
+            original = T.OSVIWM
+            def capture(cfg):
+                captured["model"] = original(cfg)
+                return captured["model"]
+            T.OSVIWM = capture
+            result = T.train(tiny_run_config(max_steps=3, batch_size=8, val_every=100), SyntheticPairs(), None,
+                             {str(out)!r}, show_progress=False)
+            checksum = torch.tensor([sum(float(p.double().sum()) for p in captured["model"].parameters())])
+            sums = [torch.zeros(1, dtype=checksum.dtype) for _ in range(dist.get_world_size())]
+            dist.all_gather(sums, checksum)
+            if dist.get_rank() == 0:
+                open({str(tmp_path / "sums.txt")!r}, "w").write(" ".join(str(float(s)) for s in sums))
+            assert result.step == 3
+            dist.destroy_process_group()
+            """
+        )
+    )
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29517",
+           str(script)]  # fmt: skip
+    proc = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    sums = [float(v) for v in (tmp_path / "sums.txt").read_text().split()]
+    assert len(sums) == 2 and sums[0] == pytest.approx(sums[1], rel=1e-9, abs=1e-9)
+    assert load_checkpoint(out / "last.pt")["step"] == 3
+    start = next(r for r in records(out) if r.get("event") == "start")
+    assert start["world_size"] == 2
+    assert [r["step"] for r in records(out) if "loss" in r] == [1, 2, 3]
