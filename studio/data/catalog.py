@@ -326,7 +326,7 @@ class Catalog:
         task: str | None = None,
         tasks: Sequence[str] | None = None,
         scene: str | None = None,
-        role: str | None = None,
+        role: str | Sequence[str] | None = None,
         embodiment: str | Sequence[str] | None = None,
         source: str | Sequence[str] | None = None,
         success: bool | None = None,
