@@ -108,6 +108,7 @@ def resolve_tasks(scene: str, names: list[str]) -> list[str]:
     if not known:
         raise ValueError(f"scene {scene!r} has no tasks")
     out: list[str] = []
+    names = [n.strip() for arg in names for n in arg.split(",") if n.strip()]  # "a,b" and "a b" both work
     for name in names:
         if name == "all":
             out.extend(known)
@@ -269,7 +270,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--tasks",
         nargs="+",
         default=["all"],
-        help="'all', 'train', 'test' or task names, e.g. 'pick_place/cube->red'",
+        help="'all', 'train', 'test' or task names (space- or comma-separated), e.g. 'pick_place/cube->red'",
     )
     parser.add_argument("--episodes", type=int, default=100, help="episodes per task")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes")
