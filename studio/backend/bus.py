@@ -294,9 +294,16 @@ def request_all(
     *,
     timeout: float = 2.0,
 ) -> list[M]:
-    """Every valid reply of type ``expect`` to a query on ``selector`` (malformed ones are logged)."""
+    """Every valid reply of type ``expect`` to a query on ``selector`` (malformed ones are logged).
+
+    Replies are not consolidated: several replies on one key (a listing) all arrive.
+    """
     out: list[M] = []
-    kwargs: dict[str, Any] = {"timeout": timeout, "target": zenoh.QueryTarget.ALL}
+    kwargs: dict[str, Any] = {
+        "timeout": timeout,
+        "target": zenoh.QueryTarget.ALL,
+        "consolidation": zenoh.ConsolidationMode.NONE,
+    }
     if message is not None:
         kwargs["payload"] = msg.encode(message)
     for reply in session.get(selector, **kwargs):

@@ -92,10 +92,13 @@ def parse_handler_option(text: str) -> tuple[str, str]:
 
 
 def resolve_handlers(
-    worker_kind: str, extra: Iterable[str] = ()
+    worker_kind: str, extra: Iterable[str] = (), *, defaults: bool = True
 ) -> tuple[dict[str, Handler], dict[str, str]]:
-    """The handlers a worker of ``worker_kind`` offers, and the kinds it cannot offer with the reason."""
-    refs = {k.name: k.handler for k in JOB_KINDS.values() if k.worker_kind == worker_kind}
+    """The handlers a worker of ``worker_kind`` offers, and the kinds it cannot offer with the reason.
+
+    ``extra`` holds ``KIND=module:function`` texts; ``defaults=False`` leaves out :data:`JOB_KINDS`.
+    """
+    refs = {k.name: k.handler for k in JOB_KINDS.values() if defaults and k.worker_kind == worker_kind}
     for text in extra:
         kind, ref = parse_handler_option(text)
         refs[kind] = ref
@@ -300,15 +303,18 @@ class JobRunner:
                     return status
         return msg.ErrorReply(code="not_found", message=f"this worker does not hold job {cancel.job}")
 
-    def _on_jobs(self, _request: msg.Message | None, _query: zenoh.Query) -> list[tuple[str, msg.Message]]:
+    def _on_jobs(self, _request: msg.Message | None, query: zenoh.Query) -> list[tuple[str, msg.Message]]:
+        """The worker's status first (so an empty listing is told apart from no answer), then one
+        JobStatus (and JobResult) per job it runs or recently finished, all on the query's key."""
+        key = str(query.key_expr)
+        out: list[tuple[str, msg.Message]] = [(key, self.presence.status)]
         with self._lock:
-            out: list[tuple[str, msg.Message]] = []
             for status, result in self._finished:
-                out.append((keys.job_key(status.job, "status"), status))
+                out.append((key, status))
                 if result is not None:
-                    out.append((keys.job_key(status.job, "result"), result))
+                    out.append((key, result))
             if self._current is not None:
-                out.append((keys.job_key(self._current.assign.job, "status"), self._current.status))
+                out.append((key, self._current.status))
         return out
 
     # ------------------------------------------------------------------ running

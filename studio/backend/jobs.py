@@ -436,11 +436,17 @@ class JobQueue:
                 bus.log.exception("job queue iteration failed")
 
     def _reattach(self, kind: str, worker: str) -> None:
+        """Ask a (re)joined worker which jobs it holds and reconcile them with the queue's view."""
         try:
             replies = bus.request_all(
                 self.session, keys.worker_key(kind, worker, "jobs"), msg.Message, timeout=2.0
             )
         except zenoh.ZError:
+            replies = []
+        if not any(isinstance(m, msg.WorkerStatus) for m in replies):
+            # No answer (its queryables may not be declared to us yet): ask again shortly, if it is still here.
+            if self.directory.get(kind, worker) is not None:
+                threading.Timer(0.5, self._request_reattach, args=(kind, worker)).start()
             return
         held = set()
         for m in replies:
@@ -458,6 +464,12 @@ class JobQueue:
                     finished = [m for m in replies if isinstance(m, msg.JobStatus) and m.job == s.job]
                     if not finished:
                         self._apply_worker_loss_locked(job)
+
+    def _request_reattach(self, kind: str, worker: str) -> None:
+        with self._cond:
+            if not self._closed:
+                self._pending.reattach.add((kind, worker))
+                self._cond.notify_all()
 
     def _forward_cancel(self, kind: str, worker: str, cancel: msg.JobCancel) -> None:
         try:

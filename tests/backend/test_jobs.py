@@ -1,0 +1,245 @@
+"""Job lifecycles through a real hub and real worker processes: submit, progress, queue, cancel, faults, restarts."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+
+import pytest
+
+from studio.backend import bus, keys
+from studio.backend import messages as msg
+from studio.backend.hub import Hub
+from studio.backend.jobs import JobClient
+
+from .conftest import wait_worker
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def eventually(predicate, timeout: float = 5.0) -> bool:
+    """Poll ``predicate`` (streams on different keys reach different subscribers independently)."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def count_spec(tmp_path, name: str, steps: int, step_s: float = 0.01, **more) -> dict:
+    return {"steps": steps, "step_s": step_s, "run_dir": str(tmp_path / name), **more}
+
+
+def test_job_runs_with_progress_artifacts_and_result(hub, workers, tmp_path):
+    workers.start("train", "t1")
+    wait_worker(hub.directory, "t1")
+    client = JobClient(hub.session)
+    status = client.submit("count", count_spec(tmp_path, "run", steps=12, every=4), worker_kind="train")
+    assert status.state == "queued" and status.attempt == 1
+    with client.watch(status.job) as watch:
+        final = watch.wait(timeout=20)
+        assert final.state == "succeeded", final
+        assert final.worker == "t1"
+        watch.wait(lambda w: w.result is not None, timeout=5)
+        assert watch.result.result == {"counted": 12, "resumed_from": 0, "attempt": 1, "worker": "t1"}
+        watch.wait(lambda w: w.progress is not None and w.progress.step == 12, timeout=5)
+        assert watch.progress.total == 12 and watch.progress.metrics["loss"] == pytest.approx(1 / 12)
+        # Streams on different keys arrive independently: wait for the last checkpoint announcement too.
+        watch.wait(lambda w: len(w.artifacts) == 3, timeout=5)
+        assert [a.step for a in watch.artifacts] == [4, 8, 12]
+        assert {s.state for s in watch.history} >= {"running", "succeeded"}
+    # The queue lists it and serves its result to anyone who asks later.
+    listed = {s.job: s for s in client.list()}
+    assert listed[status.job].state == "succeeded"
+    assert client.result(status.job).result["counted"] == 12
+    # The worker is idle again.
+    assert hub.directory.wait_for(lambda ws: ws[0].status.state == "idle", 5)
+
+
+def test_second_job_waits_in_the_queue_while_the_worker_is_busy(hub, workers, tmp_path):
+    workers.start("train", "t1")
+    wait_worker(hub.directory, "t1")
+    client = JobClient(hub.session)
+    first = client.submit("count", count_spec(tmp_path, "a", steps=60, step_s=0.02), worker_kind="train")
+    with client.watch(first.job) as w1:
+        w1.wait(lambda w: w.status.state == "running", timeout=10)
+        second = client.submit("count", count_spec(tmp_path, "b", steps=5), worker_kind="train")
+        with client.watch(second.job) as w2:
+            time.sleep(0.5)
+            assert w2.status.state == "queued"
+            assert w2.status.queue_position == 0 and "waiting for a free train worker" in w2.status.reason
+            done1 = w1.wait(timeout=20)
+            done2 = w2.wait(timeout=20)
+    assert done1.state == done2.state == "succeeded"
+    running2 = next(s for s in w2.history if s.state == "running")
+    assert running2.updated_at >= done1.updated_at
+
+
+def test_cancel_running_and_queued_jobs(hub, workers, tmp_path):
+    workers.start("train", "t1")
+    wait_worker(hub.directory, "t1")
+    client = JobClient(hub.session)
+    running = client.submit("count", count_spec(tmp_path, "a", steps=1000, step_s=0.02), worker_kind="train")
+    queued = client.submit("count", count_spec(tmp_path, "b", steps=5), worker_kind="train")
+    with client.watch(running.job) as w1, client.watch(queued.job) as w2:
+        w1.wait(lambda w: w.progress is not None and w.progress.step >= 3, timeout=10)
+        cancelled = client.cancel(queued.job, reason="not needed")
+        assert cancelled.state == "cancelled" and cancelled.reason == "not needed"
+        client.cancel(running.job, reason="user pressed stop")
+        final = w1.wait(timeout=10)
+        assert final.state == "cancelled" and "user pressed stop" in final.reason
+        assert w1.progress.step < 1000
+        assert w2.wait(timeout=1).state == "cancelled"
+    # Cancelling a finished job is harmless and says how it ended; an unknown job is an error.
+    assert client.cancel(running.job).state == "cancelled"
+    with pytest.raises(bus.RemoteError, match="not_found"):
+        client.cancel("no-such-job")
+
+
+def test_failing_handler_is_reported_and_worker_keeps_serving(hub, workers, tmp_path):
+    workers.start("train", "t1")
+    wait_worker(hub.directory, "t1")
+    client = JobClient(hub.session)
+    bad = client.submit("count", count_spec(tmp_path, "bad", steps=10, fail_at=3), worker_kind="train")
+    with client.watch(bad.job) as w:
+        final = w.wait(timeout=15)
+    assert final.state == "failed" and "asked to fail at step 3" in final.reason
+    good = client.submit("count", count_spec(tmp_path, "good", steps=3), worker_kind="train")
+    with client.watch(good.job) as w:
+        assert w.wait(timeout=15).state == "succeeded"
+
+
+def test_job_kind_nobody_offers_stays_queued_with_the_reason(hub, workers, tmp_path):
+    workers.start("train", "t1")
+    wait_worker(hub.directory, "t1")
+    client = JobClient(hub.session)
+    status = client.submit("paint", {"colour": "red"}, worker_kind="train")
+    with client.watch(status.job) as w:
+        w.wait(lambda w: "no connected train worker can run 'paint'" in w.status.reason, timeout=5)
+        assert w.status.state == "queued"
+    with pytest.raises(ValueError, match="worker_kind"):
+        client.submit("paint", {})
+
+
+def test_worker_killed_mid_job_is_reported_failed_within_5_s(hub, workers, tmp_path):
+    proc = workers.start("sim", "s1")
+    wait_worker(hub.directory, "s1")
+    client = JobClient(hub.session)
+    # A rollout-like job: not re-queued when its worker dies.
+    status = client.submit(
+        "count",
+        count_spec(tmp_path, "r", steps=1000, step_s=0.02),
+        worker_kind="sim",
+        requeue_on_worker_loss=False,
+    )
+    with client.watch(status.job) as w:
+        w.wait(lambda w: w.progress is not None and w.progress.step >= 5, timeout=15)
+        t_kill = time.monotonic()
+        proc.send_signal(signal.SIGKILL)
+        final = w.wait(timeout=5)
+        elapsed = time.monotonic() - t_kill
+    assert final.state == "failed", final
+    assert "worker s1 lost" in final.reason and "liveliness" in final.reason
+    assert elapsed < 5.0
+    assert eventually(lambda: hub.jobs.get(status.job).state == "failed")
+
+
+def test_killed_trainer_job_is_requeued_and_resumes_from_its_checkpoint(hub, workers, tmp_path):
+    first = workers.start("train", "t1")
+    wait_worker(hub.directory, "t1")
+    client = JobClient(hub.session)
+    spec = count_spec(tmp_path, "run", steps=60, step_s=0.03, every=5)
+    status = client.submit("count", spec, worker_kind="train", requeue_on_worker_loss=True, max_attempts=3)
+    with client.watch(status.job) as w:
+        w.wait(lambda w: any(a.step >= 10 for a in w.artifacts), timeout=20)
+        first.send_signal(signal.SIGKILL)
+        requeued = w.wait(lambda w: w.status.attempt == 2, timeout=5)
+        assert requeued.state == "queued" and "worker t1 lost during attempt 1; re-queued" in requeued.reason
+        workers.start("train", "t2")  # the next available trainer
+        final = w.wait(timeout=30)
+        w.wait(lambda w: w.result is not None, timeout=5)
+    assert final.state == "succeeded" and final.worker == "t2" and final.attempt == 2
+    assert w.result.result["resumed_from"] >= 10
+    assert w.result.result["attempt"] == 2
+    attempts = (tmp_path / "run" / "attempts.log").read_text().split("\n")
+    assert attempts[0].split() == ["1", "t1", "0"] and attempts[1].split()[:2] == ["2", "t2"]
+    assert json.loads((tmp_path / "run" / "checkpoint.json").read_text()) == {"step": 60}
+
+
+def test_restarted_hub_reattaches_to_a_running_job(tmp_path, port, workers):
+    endpoint = bus.loopback_endpoint(port)
+    journal = tmp_path / "queue.json"
+    hub1 = Hub(bus.BusConfig.hub([endpoint]), data_dir=tmp_path / "data", journal=journal)
+    try:
+        workers.start("train", "t1")
+        wait_worker(hub1.directory, "t1")
+        status = JobClient(hub1.session).submit(
+            "count", count_spec(tmp_path, "run", steps=80, step_s=0.03), worker_kind="train"
+        )
+        with JobClient(hub1.session).watch(status.job) as w:
+            w.wait(lambda w: w.status.state == "running", timeout=10)
+    finally:
+        hub1.close()  # the UI host goes away; the worker keeps the job running
+    time.sleep(0.5)
+    hub2 = Hub(bus.BusConfig.hub([endpoint]), data_dir=tmp_path / "data", journal=journal)
+    try:
+        client = JobClient(hub2.session)
+        listed = {s.job: s for s in client.list()}
+        assert listed[status.job].state == "running" and listed[status.job].worker == "t1"
+        with client.watch(status.job) as w:
+            w.wait(lambda w: w.progress is not None, timeout=10)  # progress flows again
+            final = w.wait(timeout=20)
+        assert final.state == "succeeded" and final.attempt == 1, final.reason
+        assert eventually(lambda: hub2.jobs.get(status.job).state == "succeeded")
+    finally:
+        hub2.close()
+
+
+def test_restarted_hub_fails_a_job_whose_worker_died_meanwhile(tmp_path, port, workers):
+    endpoint = bus.loopback_endpoint(port)
+    journal = tmp_path / "queue.json"
+    hub1 = Hub(bus.BusConfig.hub([endpoint]), data_dir=tmp_path / "data", journal=journal)
+    try:
+        proc = workers.start("sim", "s1")
+        wait_worker(hub1.directory, "s1")
+        status = JobClient(hub1.session).submit(
+            "count", count_spec(tmp_path, "run", steps=1000, step_s=0.02), worker_kind="sim"
+        )
+        with JobClient(hub1.session).watch(status.job) as w:
+            w.wait(lambda w: w.status.state == "running", timeout=10)
+    finally:
+        hub1.close()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(10)
+    hub2 = Hub(bus.BusConfig.hub([endpoint]), data_dir=tmp_path / "data", journal=journal)
+    try:
+        with JobClient(hub2.session).watch(status.job) as w:
+            final = w.wait(timeout=hub2.jobs.reattach_grace_s + 3)
+        assert final.state == "failed" and "worker s1 lost" in final.reason
+    finally:
+        hub2.close()
+
+
+def test_malformed_job_requests_get_error_replies_and_nothing_crashes(hub, workers, tmp_path):
+    workers.start("train", "t1")
+    wait_worker(hub.directory, "t1")
+    for key in (keys.job_key("x1", "submit"), keys.worker_key("train", "t1", "assign")):
+        replies = list(hub.session.get(key, payload=b"\x01\x93garbage", timeout=3))
+        assert len(replies) == 1
+        answer = msg.decode(replies[0].ok.payload.to_bytes())
+        assert isinstance(answer, msg.ErrorReply) and answer.code == "bad_request"
+    # A well-formed message of the wrong type is refused too.
+    with pytest.raises(bus.RemoteError, match="bad_request"):
+        bus.request(hub.session, keys.job_key("x1", "submit"), msg.Ack(), msg.JobStatus)
+    # A submission whose id differs from its key is refused.
+    submit = msg.JobSubmit(job="x2", kind="count", worker_kind="train", spec={})
+    with pytest.raises(bus.RemoteError, match="bad_request"):
+        bus.request(hub.session, keys.job_key("x1", "submit"), submit, msg.JobStatus)
+    # Garbage published on the status keys is dropped by the queue.
+    hub.session.put(keys.job_key("x3", "status"), b"\x00\x01\x02")
+    status = JobClient(hub.session).submit("count", count_spec(tmp_path, "ok", steps=2), worker_kind="train")
+    with JobClient(hub.session).watch(status.job) as w:
+        assert w.wait(timeout=15).state == "succeeded"
+    assert {s.job for s in JobClient(hub.session).list()} == {status.job}
