@@ -685,5 +685,29 @@ def markdown_tables() -> str:
     return "\n".join(lines).rstrip() + "\n"
 
 
+DOC_BEGIN = (
+    "<!-- BEGIN GENERATED MESSAGE TABLES: python -m studio.backend.messages --update docs/protocol.md -->"
+)
+DOC_END = "<!-- END GENERATED MESSAGE TABLES -->"
+
+
+def update_doc(path: str) -> bool:
+    """Rewrite the generated section of ``path`` (between :data:`DOC_BEGIN` and :data:`DOC_END`)."""
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    head, sep1, rest = text.partition(DOC_BEGIN)
+    _, sep2, tail = rest.partition(DOC_END)
+    if not (sep1 and sep2):
+        raise ValueError(f"{path} lacks the generated-section markers")
+    new = f"{head}{DOC_BEGIN}\n\n{markdown_tables()}\n{DOC_END}{tail}"
+    if new != text:
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(new)
+    return new != text
+
+
 if __name__ == "__main__":
-    sys.stdout.write(markdown_tables())
+    if len(sys.argv) == 3 and sys.argv[1] == "--update":
+        print("updated" if update_doc(sys.argv[2]) else "up to date", sys.argv[2])
+    else:
+        sys.stdout.write(markdown_tables())
