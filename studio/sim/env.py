@@ -243,3 +243,27 @@ class SimEnv:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def default_image_size(scene: str) -> tuple[int, int]:
+    """The external camera's (height, width) a scene family is collected at by default."""
+    if scene == "metaworld":
+        from studio.sim.metaworld_env import IMAGE_SIZE
+
+        return IMAGE_SIZE
+    return (240, 320)
+
+
+def make_env(scene: str, robot: str, *, image_size: tuple[int, int] | None = None, **kwargs):
+    """The simulator of a scene family: a :class:`SimEnv` for the tabletop scenes, a
+    :class:`~studio.sim.metaworld_env.MetaWorldEnv` for ``"metaworld"`` (same interface).
+
+    ``image_size`` None means the scene's default (:func:`default_image_size`); other keyword
+    arguments go to the environment's constructor.
+    """
+    size = image_size or default_image_size(scene)
+    if scene == "metaworld":
+        from studio.sim.metaworld_env import MetaWorldEnv
+
+        return MetaWorldEnv(scene, robot, image_size=size, **kwargs)
+    return SimEnv(scene, robot, image_size=size, **kwargs)

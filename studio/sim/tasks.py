@@ -5,6 +5,8 @@ Tasks are named ``<scene>/<what>``:
 * ``pick_place/<object>-><target>`` for the 16 pairs of objects (cube, cylinder, prism, bar) and
   target zones (red, green, blue, yellow);
 * ``push/<box>-<forward|backward>`` for the red and blue boxes (forward = away from the robot, +y).
+* ``metaworld/<v3 name>`` for Meta-World's 50 tasks, whose sampling and success belong to the
+  ``metaworld`` package (:mod:`studio.sim.metaworld_tasks`, :mod:`studio.sim.metaworld_env`).
 
 Sampling uses only ``numpy.random.default_rng(seed)``, so re-creating a task with the same seed
 gives the same initial state bit for bit. Success is judged from the simulator state alone, and each
@@ -18,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from studio.sim.metaworld_tasks import SCENE as METAWORLD
+from studio.sim.metaworld_tasks import MetaWorldTask, get_metaworld_task, list_metaworld_tasks
 from studio.sim.scenes import SCENES, Layout, scene_info
 
 # Slots of the pick-and-place layout: objects along the near row, targets along the far row.
@@ -118,11 +122,17 @@ TASKS: dict[str, Task] = _build_registry()
 
 
 def list_tasks(scene: str | None = None) -> list[str]:
-    """Task names of one scene family (or all), in registry order."""
-    return [n for n, t in TASKS.items() if scene is None or t.scene == scene]
+    """Task names of one scene family (or all), in registry order; Meta-World's 50 come last."""
+    names = [n for n, t in TASKS.items() if scene is None or t.scene == scene]
+    if scene in (None, METAWORLD):
+        names += list_metaworld_tasks()
+    return names
 
 
-def get_task(name: str) -> Task:
+def get_task(name: str) -> Task | MetaWorldTask:
+    """A tabletop :class:`Task`, or a :class:`~studio.sim.metaworld_tasks.MetaWorldTask` for ``metaworld/...``."""
+    if name.startswith(f"{METAWORLD}/"):
+        return get_metaworld_task(name)
     try:
         return TASKS[name]
     except KeyError:
