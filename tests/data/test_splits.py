@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -22,7 +23,22 @@ def test_push_split():
     spec = load_split("push")
     assert len(spec.train) == 3 and spec.test == ("push/blue-backward",)
     assert sorted(spec.train + spec.test) == sorted(list_tasks("push"))
-    assert available_splits() == ["pick_place", "push"]
+    assert available_splits() == ["metaworld", "metaworld_ablation", "pick_place", "push"]
+
+
+def test_metaworld_splits_follow_paper():
+    spec = load_split("metaworld")
+    raw = json.loads((Path(__file__).parents[2] / "studio/splits/metaworld.json").read_text())
+    easy, hard = raw["test_groups"]["easy"], raw["test_groups"]["hard"]
+    assert easy == ["metaworld/button-press-v3", "metaworld/pick-place-wall-v3"]
+    assert hard == ["metaworld/window-open-v3", "metaworld/door-unlock-v3"]
+    assert spec.scene == "metaworld" and spec.test == tuple(easy + hard) and len(spec.train) == 46
+    assert sorted(spec.train + spec.test) == sorted(list_tasks("metaworld"))
+    assert set(raw["twins"]) == set(spec.test) and set(raw["twins"].values()) <= set(spec.train)
+    ablation = load_split("metaworld_ablation")
+    assert ablation.scene == "metaworld" and ablation.test == spec.test
+    assert set(spec.train) - set(ablation.train) == {"metaworld/window-close-v3"}
+    assert set(ablation.train) < set(spec.train)
 
 
 def test_split_from_file_and_errors(tmp_path):
