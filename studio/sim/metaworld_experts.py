@@ -1,0 +1,95 @@
+"""Scripted Meta-World experts: each task's policy from ``metaworld.policies``, recorded like our own experts.
+
+A policy reads Meta-World's observation (:meth:`MetaWorldEnv.observation`) and answers with a delta
+action (dx, dy, dz, grab effort in [-1, 1]). We apply it with :meth:`MetaWorldEnv.step_action`, which
+does to the simulation exactly what Meta-World's ``step`` does (mocap moved by action × 1 cm per axis,
+finger controls ± effort) without its 500-step episode bookkeeping, so the policies succeed as often as
+in Meta-World itself. The recorded gripper command is the effort on our 0 (open) … 1 (closed) scale,
+``(effort + 1) / 2``: grasping policies command 0.8–1.0, pressing and pushing ones hold 0.5 (effort 0)
+or 0 (effort −1). Making the effort binary instead breaks several policies (assembly, basketball,
+pick-out-of-hole, peg-unplug-side fail almost always; measured in ``docs/metaworld.md``).
+
+An episode stops :data:`AFTER_SUCCESS` ticks after the env's success signal first comes on (the
+reference data kept 5) and fails after :data:`MAX_TICKS` (Meta-World's horizon). Failed episodes are
+returned with ``success=False``; collection discards them.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from studio.sim.metaworld_env import IMAGE_SIZE, MetaWorldEnv
+from studio.sim.metaworld_tasks import SCENE, get_metaworld_task
+from studio.sim.recorder import Recorder
+from studio.sim.recording import Recording
+
+AFTER_SUCCESS = 5
+MAX_TICKS = 500
+
+
+def scripted_policy(task: str):
+    """A fresh instance of the ``metaworld.policies`` policy of ``task`` (``metaworld/<v3 name>``)."""
+    from metaworld.policies import ENV_POLICY_MAP
+
+    return ENV_POLICY_MAP[get_metaworld_task(task).env_name]()
+
+
+def expert_action(policy, env: MetaWorldEnv) -> np.ndarray:
+    """The policy's action (dx, dy, dz, grab effort) for the env's current state."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the policies warn whenever their P-gain saturates an axis
+        return np.asarray(policy.get_action(env.observation()), dtype=np.float64)
+
+
+def run_expert(
+    env: MetaWorldEnv,
+    recorder: Recorder | None = None,
+    max_ticks: int = MAX_TICKS,
+    after_success: int = AFTER_SUCCESS,
+) -> int | None:
+    """Run the scripted policy on the env's current episode; the tick of first success, or None."""
+    policy = scripted_policy(env.task.name)
+    first = None
+    for _ in range(max_ticks):
+        env.step_action(expert_action(policy, env))
+        if recorder is not None:
+            recorder.tick()
+        if first is None and env.success_now():
+            first = env.steps
+        if first is not None and env.steps >= first + after_success:
+            break
+    return first
+
+
+def record_expert(
+    scene: str,
+    robot: str,
+    task: str,
+    seed: int,
+    image_size: tuple[int, int] = IMAGE_SIZE,
+    min_frames: int = 30,
+    env: MetaWorldEnv | None = None,
+) -> Recording:
+    """One scripted Meta-World episode, recorded: full-rate arrays and ``min_frames`` evenly spaced frames.
+
+    Same signature as :func:`studio.sim.experts.record_expert`; ``scene`` must be ``"metaworld"`` and
+    ``robot`` ``"sawyer"``. Pass ``env`` to reuse an environment across episodes.
+    """
+    if scene != SCENE:
+        raise ValueError(f"the Meta-World experts record scene {SCENE!r}, not {scene!r}")
+    size = (int(image_size[0]), int(image_size[1]))
+    if env is not None and env.image_size != size:
+        raise ValueError(f"env renders {env.image_size}, the recording asks for {size}")
+    own = env is None
+    env = env or MetaWorldEnv(scene, robot, image_size=size)
+    try:
+        env.reset(task, seed)
+        rec = Recorder(env)
+        rec.tick()
+        first = run_expert(env, rec)
+        return rec.finish(n_frames=min_frames, success=first is not None)
+    finally:
+        if own:
+            env.close()
