@@ -11,6 +11,7 @@ import sys
 TARGETS: dict[str, str] = {
     "sim": "studio.sim.bench",
     "collect": "studio.data.bench",
+    "bus": "studio.backend.bench",
 }
 
 

@@ -1,0 +1,123 @@
+"""The UI host's side of the bus in one object, and ``studio hub`` to run it without the browser UI.
+
+:class:`Hub` opens the router session workers connect to and hosts what exists once per studio: the
+worker :class:`~studio.backend.presence.Directory`, the :class:`~studio.backend.jobs.JobQueue` (with its
+journal under ``<data-dir>/jobs/``) and the :class:`~studio.backend.episode_transfer.EpisodeSink` that
+stores episodes shipped by remote workers. ``studio serve`` creates one and, by default, starts the
+embedded workers (:func:`studio.backend.embedded.start_embedded_workers`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from studio.backend import bus
+from studio.backend.episode_transfer import EpisodeSink
+from studio.backend.jobs import JobClient, JobQueue
+from studio.backend.presence import Directory
+
+JOURNAL_NAME = "jobs/queue.json"
+
+
+class Hub:
+    """Router session + directory + job queue + episode sink.
+
+    Args:
+        config: bus configuration (default: a router on ``tcp/127.0.0.1:7447``).
+        data_dir: dataset root of the studio's store (None: ``STUDIO_DATA_DIR`` or the user data dir).
+        journal: job-queue journal (default ``<data_dir>/jobs/queue.json``).
+        store: an already open :class:`studio.data.store.EpisodeStore` to use instead of opening one.
+    """
+
+    def __init__(
+        self,
+        config: bus.BusConfig | None = None,
+        *,
+        data_dir: str | Path | None = None,
+        journal: str | Path | None = None,
+        store: Any = None,
+    ):
+        from studio.data.paths import resolve_data_dir
+        from studio.data.store import EpisodeStore
+
+        self.config = config or bus.BusConfig.hub()
+        self.data_dir = resolve_data_dir(data_dir)
+        self._own_store = store is None
+        self.store = store if store is not None else EpisodeStore(self.data_dir)
+        self.session = bus.open_session(self.config)
+        self.directory = Directory(self.session)
+        self.jobs = JobQueue(self.session, self.directory, journal=journal or self.data_dir / JOURNAL_NAME)
+        self.sink = EpisodeSink(self.session, self.store)
+        self.job_client = JobClient(self.session)
+
+    @property
+    def endpoint(self) -> str:
+        """The endpoint local workers connect to (the first listen endpoint)."""
+        if not self.config.listen:
+            raise bus.BusError("this hub does not listen; workers must be reachable through --connect")
+        return self.config.listen[0]
+
+    def close(self) -> None:
+        self.sink.close()
+        self.jobs.close()
+        self.directory.close()
+        self.session.close()
+        if self._own_store:
+            self.store.close()
+
+    def __enter__(self) -> Hub:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    bus.add_bus_arguments(parser, "hub")
+    parser.add_argument(
+        "--data-dir", default=None, help="dataset root (default: $STUDIO_DATA_DIR or the user data dir)"
+    )
+    parser.add_argument(
+        "--workers",
+        choices=("default", "none"),
+        default="default",
+        help="default: start one sim worker and one trainer here; none: wait for external workers",
+    )
+    parser.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+
+
+def run(args: argparse.Namespace) -> int:
+    """``studio hub``: the studio's bus, job queue and store without the browser UI."""
+    from studio.backend.embedded import start_embedded_workers
+
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s hub: %(message)s")
+    try:
+        config = bus.bus_config_from_args(args, "hub")
+    except ValueError as e:
+        print(f"studio hub: {e}", file=sys.stderr)
+        return 2
+    try:
+        hub = Hub(config, data_dir=args.data_dir)
+    except bus.BusError as e:
+        print(f"studio hub: {e}", file=sys.stderr)
+        return 1
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    workers = None
+    try:
+        if args.workers == "default":
+            workers = start_embedded_workers(hub)
+        print(f"studio hub ready on {', '.join(config.listen)} (data: {hub.data_dir})", flush=True)
+        stop.wait()
+    finally:
+        if workers is not None:
+            workers.stop()
+        hub.close()
+    return 0

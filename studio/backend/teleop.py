@@ -1,0 +1,600 @@
+"""One client's teleop session on a sim worker: a simulator stepping in real time, driven over the bus.
+
+Three threads per session, so that nothing slow ever delays physics:
+
+* **sim** — one :meth:`studio.sim.env.SimEnv.step` per control tick (``control_dt``, 60 Hz by default),
+  with the newest :class:`~studio.backend.messages.EeTarget` (latest wins: commands that arrive between
+  two ticks replace each other). A new command runs the next tick at once if that keeps simulated time
+  at most one tick ahead of wall time, so command-to-pose latency is the IK + physics time, not the
+  tick phase, while the simulation still runs in real time.
+  Each tick publishes a :class:`~studio.backend.messages.PoseFrame` with Zenoh's drop-on-congestion
+  policy: a slow subscriber loses stale poses, it never slows the loop. Requests that change the
+  simulation (reset, recording) run on this thread between ticks.
+* **render** — camera images for :class:`~studio.backend.messages.RequestFrame` /
+  :class:`~studio.backend.messages.StreamFrames` and the frames of finished recordings, rendered on a
+  second ``SimEnv`` (same scene, same task layout) set to a snapshot of the physics state.
+* **saver** — hands finished recordings to the store (a shared data directory or the bus); on failure
+  the recording is written to the worker's spool directory rather than lost.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import zenoh
+
+from studio.backend import bus, keys
+from studio.backend import messages as msg
+from studio.backend.episode_transfer import EpisodeDestination, ShipError, _write_durably, recording_payload
+from studio.backend.scene_state import body_names, pose_frame, scene_geometry
+from studio.sim.env import SimEnv
+from studio.sim.recorder import Recorder
+from studio.sim.recording import Recording
+
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+
+#: A recording shorter than this many control ticks is refused (the store wants ≥ 20 frames).
+MIN_RECORDED_STEPS = 20
+#: Recorded episodes get one video frame per this many seconds of simulated time (10 fps) ...
+FRAME_PERIOD_S = 0.1
+#: ... but never fewer than MIN_RECORDED_STEPS frames, nor more than this.
+MAX_RECORDED_FRAMES = 300
+#: Default robot role of a teleop recording, by robot (the Sawyer demonstrates, the Panda is the agent).
+DEFAULT_ROLE = {"sawyer": "expert", "panda": "agent"}
+
+
+class SessionError(RuntimeError):
+    """A request the session cannot serve; ``code`` is an ErrorReply code."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass(frozen=True)
+class TeleopConfig:
+    """Timing of a teleop session.
+
+    Attributes:
+        control_dt: seconds per control tick; the simulator rounds it to whole physics steps
+            (1/60 s becomes 8 × 2 ms = 16 ms, 62.5 Hz).
+        command_lead: how far (in ticks) a new command may run its tick ahead of real time, so that it
+            is applied at once instead of at the next tick.
+        state_hz: how often the session's :class:`~studio.backend.messages.SessionState` is re-published.
+    """
+
+    control_dt: float = 1.0 / 60.0
+    command_lead: float = 1.0
+    state_hz: float = 2.0
+
+
+@dataclass
+class _Call:
+    fn: Callable[[], Any]
+    done: threading.Event
+    result: Any = None
+    error: BaseException | None = None
+
+    def run(self) -> None:
+        try:
+            self.result = self.fn()
+        except BaseException as e:  # handed back to the caller's thread
+            self.error = e
+        finally:
+            self.done.set()
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    state: np.ndarray
+    step: int
+    task: str
+    seed: int
+
+
+@dataclass
+class _FinishJob:
+    rows: list[dict]
+    states: list[np.ndarray]
+    task: str
+    seed: int
+    success: bool
+    role: str
+    n_frames: int
+
+
+class TeleopSession:
+    """A teleop session; created by the sim worker when a client sends :class:`OpenSession`.
+
+    Raises :class:`SessionError` if the scene, robot or task is unknown.
+    """
+
+    def __init__(
+        self,
+        zsession: zenoh.Session,
+        worker: str,
+        session_id: str,
+        request: msg.OpenSession,
+        destination: EpisodeDestination,
+        spool_dir: Path,
+        config: TeleopConfig = TeleopConfig(),
+    ):
+        self.zsession = zsession
+        self.worker = worker
+        self.id = session_id
+        self.request = request
+        self.destination = destination
+        self.spool_dir = spool_dir
+        self.config = config
+        size = (request.image_height, request.image_width)
+        try:
+            self.env = SimEnv(request.scene, request.robot, image_size=size, control_dt=config.control_dt)
+            self.env.reset(request.task, request.seed)
+        except ValueError as e:
+            raise SessionError("bad_request", str(e)) from None
+        m = self.env.model
+        self.cameras = tuple(m.camera(i).name for i in range(m.ncam))
+        self.body_names = body_names(m)
+        self._geometry: msg.SceneGeometry | None = None
+
+        self._cond = threading.Condition()
+        self._closed = False
+        self._cmd: msg.EeTarget | None = None
+        self._cmd_new = False
+        self._calls: list[_Call] = []
+        self._seq = 0
+        self._recorder: Recorder | None = None
+        self._role = DEFAULT_ROLE.get(request.robot, "expert")
+        self._saving = 0
+        self._snapshot = self._take_snapshot()
+
+        self._render_cond = threading.Condition()
+        self._render_jobs: collections.deque[tuple[str, Any]] = collections.deque()
+        self._stream: msg.StreamFrames | None = None
+        self._save_queue: collections.deque[tuple[Recording, str]] = collections.deque()
+        self._save_cond = threading.Condition()
+
+        fast = {
+            "express": True,
+            "congestion_control": zenoh.CongestionControl.DROP,
+            "priority": zenoh.Priority.INTERACTIVE_HIGH,
+        }
+        self._pose_pub = zsession.declare_publisher(keys.session_key(worker, session_id, "poses"), **fast)
+        self._frame_pub = zsession.declare_publisher(
+            keys.session_key(worker, session_id, "frames"), congestion_control=zenoh.CongestionControl.DROP
+        )
+        self._status_pub = zsession.declare_publisher(keys.session_key(worker, session_id, "status"))
+        self._cmd_sub = bus.declare_subscriber(
+            zsession, keys.session_key(worker, session_id, "cmd"), self._on_cmd, msg.EeTarget
+        )
+        self._threads = [
+            threading.Thread(target=self._sim_loop, name=f"sim-{session_id}", daemon=True),
+            threading.Thread(target=self._render_loop, name=f"render-{session_id}", daemon=True),
+            threading.Thread(target=self._save_loop, name=f"save-{session_id}", daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    # ------------------------------------------------------------------ descriptions
+    def info(self) -> msg.SessionInfo:
+        env = self.env
+        return msg.SessionInfo(
+            session=self.id,
+            worker=self.worker,
+            scene=env.scene,
+            robot=env.robot,
+            task=env.task.name,
+            seed=int(env.seed),
+            control_dt=float(env.control_dt),
+            body_names=self.body_names,
+            cameras=self.cameras,
+            camera=env.camera_model("external").to_dict(),
+            image_height=env.image_size[0],
+            image_width=env.image_size[1],
+        )
+
+    def state(self, message: str = "") -> msg.SessionState:
+        env = self.env
+        rec = self._recorder
+        return msg.SessionState(
+            session=self.id,
+            state="closed" if self._closed else ("recording" if rec is not None else "idle"),
+            task=env.task.name,
+            seed=int(env.seed),
+            step=env.steps,
+            recorded_steps=0 if rec is None else len(rec),
+            saving=self._saving,
+            success=bool(env.success()),
+            message=message[:4000],
+        )
+
+    def _publish_status(self, message: msg.Message) -> None:
+        try:
+            self._status_pub.put(msg.encode(message))
+        except zenoh.ZError:
+            pass
+
+    # ------------------------------------------------------------------ requests (any thread)
+    def handle(self, request: msg.Message, query: zenoh.Query) -> Any:
+        """Serve one control request; returns the reply or :data:`bus.DEFERRED`."""
+        if isinstance(request, msg.ResetSession):
+            return self.call(lambda: self._reset(request.task, request.seed))
+        if isinstance(request, msg.StartRecording):
+            return self.call(lambda: self._start_recording(request))
+        if isinstance(request, msg.StopRecording):
+            return self.call(self._stop_recording)
+        if isinstance(request, msg.DiscardRecording):
+            return self.call(self._discard_recording)
+        if isinstance(request, msg.RequestFrame):
+            self._check_camera(request.camera)
+            with self._render_cond:
+                self._render_jobs.append(("frame", (request, query)))
+                self._render_cond.notify()
+            return bus.DEFERRED
+        if isinstance(request, msg.StreamFrames):
+            self._check_camera(request.camera)
+            with self._render_cond:
+                self._stream = request if request.hz > 0 else None
+                self._render_cond.notify()
+            return msg.Ack(
+                message=f"streaming {request.camera} at {request.hz:g} Hz" if request.hz > 0 else "stopped"
+            )
+        if isinstance(request, msg.GetGeometry):
+            if self._geometry is None:
+                self._geometry = scene_geometry(self.env.model)
+            return self._geometry
+        raise SessionError("bad_request", f"{type(request).__name__} is not a teleop session request")
+
+    def _check_camera(self, camera: str) -> None:
+        if camera not in self.cameras:
+            raise SessionError(
+                "bad_request", f"unknown camera {camera!r}; this scene has {list(self.cameras)}"
+            )
+
+    def call(self, fn: Callable[[], Any], timeout: float = 10.0) -> Any:
+        """Run ``fn`` on the sim thread between two ticks and return its result (or raise its error)."""
+        c = _Call(fn, threading.Event())
+        with self._cond:
+            if self._closed:
+                raise SessionError("not_found", f"session {self.id} is closed")
+            self._calls.append(c)
+            self._cond.notify_all()
+        if not c.done.wait(timeout):
+            raise SessionError("internal", f"the simulation did not answer within {timeout} s")
+        if c.error is not None:
+            raise c.error
+        return c.result
+
+    def _on_cmd(self, cmd: msg.EeTarget, _sample: zenoh.Sample) -> None:
+        with self._cond:
+            if self._cmd is None or cmd.seq >= self._cmd.seq:  # out-of-order stale commands are dropped
+                self._cmd = cmd
+                self._cmd_new = True
+                self._cond.notify_all()
+
+    # ------------------------------------------------------------------ sim thread
+    def _sim_loop(self) -> None:
+        # Simulated time follows wall time: tick n is due at next_due. A pending command may run its tick
+        # up to `lead` early (so it is applied at once), never more, so the simulation never runs ahead
+        # of real time by more than that; after falling behind by more than a tick it skips ahead
+        # instead of bursting.
+        dt = self.env.control_dt
+        lead = dt * self.config.command_lead
+        next_due = time.monotonic() + dt
+        next_state = 0.0
+        while True:
+            with self._cond:
+                while True:
+                    if self._closed:
+                        return
+                    now = time.monotonic()
+                    if self._calls or now >= next_due or (self._cmd_new and now >= next_due - lead):
+                        break
+                    wake = next_due - lead if self._cmd_new else next_due
+                    self._cond.wait(max(0.0, wake - now))
+                calls, self._calls = self._calls, []
+            for c in calls:
+                c.run()
+            now = time.monotonic()
+            with self._cond:
+                if not (now >= next_due or (self._cmd_new and now >= next_due - lead)):
+                    continue
+                cmd, self._cmd_new = self._cmd, False
+            try:
+                self._tick(cmd)
+            except Exception:
+                bus.log.error("session %s: control tick failed:\n%s", self.id, traceback.format_exc())
+            next_due += dt
+            if now - next_due > dt:
+                next_due = now + dt
+            if now >= next_state:
+                next_state = now + 1.0 / self.config.state_hz
+                self._publish_status(self.state())
+
+    def _tick(self, cmd: msg.EeTarget | None) -> None:
+        env = self.env
+        if cmd is not None:
+            env.step(np.asarray(cmd.pos, dtype=np.float64), cmd.gripper)
+        else:
+            env.step(env.target, env.gripper_cmd)
+        if self._recorder is not None:
+            self._recorder.tick()
+        self._publish_pose(-1 if cmd is None else cmd.seq)
+
+    def _publish_pose(self, ack_seq: int) -> None:
+        env = self.env
+        self._seq += 1
+        frame = pose_frame(
+            env.data,
+            seq=self._seq,
+            step=env.steps,
+            ack_seq=ack_seq,
+            ee_pos=env.ee_pos,
+            gripper=env.gripper_cmd,
+        )
+        snapshot = self._take_snapshot()
+        with self._render_cond:
+            self._snapshot = snapshot
+        try:
+            self._pose_pub.put(msg.encode(frame))
+        except zenoh.ZError:
+            pass
+
+    def _take_snapshot(self) -> _Snapshot:
+        env = self.env
+        state = np.empty(mujoco.mj_stateSize(env.model, _STATE))
+        mujoco.mj_getState(env.model, env.data, state, _STATE)
+        return _Snapshot(state, env.steps, env.task.name, int(env.seed))
+
+    def _reset(self, task: str | None, seed: int | None) -> msg.SessionInfo:
+        note = ""
+        if self._recorder is not None:
+            self._recorder = None
+            note = "the unsaved recording was discarded by the reset"
+        try:
+            self.env.reset(task or self.env.task.name, self.env.seed if seed is None else seed)
+        except ValueError as e:
+            raise SessionError("bad_request", str(e)) from None
+        with self._cond:
+            self._cmd, self._cmd_new = None, False
+        self._publish_pose(-1)
+        self._publish_status(self.state(note))
+        return self.info()
+
+    def _start_recording(self, request: msg.StartRecording) -> msg.SessionState:
+        if self._recorder is not None:
+            raise SessionError("conflict", "already recording; stop or discard first")
+        if request.reset:
+            self.env.reset(self.env.task.name, self.env.seed)
+            with self._cond:
+                self._cmd, self._cmd_new = None, False
+            self._publish_pose(-1)
+        self._role = request.role or DEFAULT_ROLE.get(self.env.robot, "expert")
+        self._recorder = Recorder(self.env)
+        self._recorder.tick()
+        state = self.state("recording")
+        self._publish_status(state)
+        return state
+
+    def _stop_recording(self) -> msg.SessionState:
+        rec = self._recorder
+        if rec is None:
+            raise SessionError("conflict", "not recording")
+        if len(rec) < MIN_RECORDED_STEPS:
+            raise SessionError(
+                "conflict",
+                f"recording too short: {len(rec)} steps, need at least {MIN_RECORDED_STEPS}; keep going",
+            )
+        env = self.env
+        n_frames = int(
+            np.clip(
+                round(len(rec) * env.control_dt / FRAME_PERIOD_S), MIN_RECORDED_STEPS, MAX_RECORDED_FRAMES
+            )
+        )
+        job = _FinishJob(
+            rec.rows, rec.states, env.task.name, int(env.seed), bool(env.success()), self._role, n_frames
+        )
+        self._recorder = None
+        with self._cond:
+            self._saving += 1
+        with self._render_cond:
+            self._render_jobs.append(("finish", job))
+            self._render_cond.notify()
+        state = self.state(f"saving {len(job.rows)} steps")
+        self._publish_status(state)
+        return state
+
+    def _discard_recording(self) -> msg.SessionState:
+        if self._recorder is None:
+            raise SessionError("conflict", "not recording")
+        self._recorder = None
+        state = self.state("recording discarded")
+        self._publish_status(state)
+        return state
+
+    # ------------------------------------------------------------------ render thread
+    def _render_loop(self) -> None:
+        render_env: SimEnv | None = None
+        layout: tuple[str, int] | None = None
+        next_stream = 0.0
+        try:
+            while True:
+                with self._render_cond:
+                    while True:
+                        if self._closed and not any(kind == "finish" for kind, _ in self._render_jobs):
+                            return
+                        stream = self._stream
+                        now = time.monotonic()
+                        if self._render_jobs or (
+                            stream is not None and now >= next_stream and not self._closed
+                        ):
+                            break
+                        timeout = None if stream is None else max(0.0, next_stream - now)
+                        self._render_cond.wait(timeout if timeout is not None else 1.0)
+                    job = self._render_jobs.popleft() if self._render_jobs else None
+                    snapshot = self._snapshot
+                if render_env is None:
+                    render_env = SimEnv(
+                        self.env.scene,
+                        self.env.robot,
+                        image_size=self.env.image_size,
+                        control_dt=self.env.control_dt,
+                    )
+                if job is None:
+                    next_stream = time.monotonic() + 1.0 / stream.hz
+                    layout = self._render_snapshot(render_env, layout, snapshot)
+                    frame = msg.ImageFrame.from_array(
+                        render_env.render(stream.camera),
+                        camera=stream.camera,
+                        step=snapshot.step,
+                        encoding=stream.encoding,
+                        quality=stream.quality,
+                    )
+                    self._frame_pub.put(msg.encode(frame))
+                elif job[0] == "frame":
+                    request, query = job[1]
+                    try:
+                        layout = self._render_snapshot(render_env, layout, snapshot)
+                        frame = msg.ImageFrame.from_array(
+                            render_env.render(request.camera),
+                            camera=request.camera,
+                            step=snapshot.step,
+                            encoding=request.encoding,
+                            quality=request.quality,
+                        )
+                        bus.reply(query, frame)
+                        self._frame_pub.put(msg.encode(frame))
+                    except Exception as e:
+                        bus.log.exception("session %s: rendering failed", self.id)
+                        bus.reply(query, msg.ErrorReply(code="internal", message=f"rendering failed: {e}"))
+                    finally:
+                        query.drop()
+                else:
+                    finish: _FinishJob = job[1]
+                    try:
+                        if layout != (finish.task, finish.seed):
+                            render_env.reset(finish.task, finish.seed)
+                            layout = (finish.task, finish.seed)
+                        rec = Recorder(render_env)
+                        rec.rows, rec.states = finish.rows, finish.states
+                        recording = rec.finish(n_frames=finish.n_frames, success=finish.success)
+                        with self._save_cond:
+                            self._save_queue.append((recording, finish.role))
+                            self._save_cond.notify()
+                    except Exception as e:
+                        bus.log.exception("session %s: finishing a recording failed", self.id)
+                        self._saving_done()
+                        self._publish_status(
+                            msg.EpisodeNotSaved(session=self.id, reason=f"rendering failed: {e}", kept_at="")
+                        )
+        finally:
+            with self._render_cond:
+                pending = list(self._render_jobs)
+                self._render_jobs.clear()
+            for kind, item in pending:
+                if kind == "frame":
+                    bus.reply(item[1], msg.ErrorReply(code="not_found", message="session closed"))
+                    item[1].drop()
+            if render_env is not None:
+                render_env.close()
+
+    def _render_snapshot(
+        self, env: SimEnv, layout: tuple[str, int] | None, snap: _Snapshot
+    ) -> tuple[str, int]:
+        if layout != (snap.task, snap.seed):
+            env.reset(snap.task, snap.seed)  # moves the target zones to where the sim has them
+        mujoco.mj_setState(env.model, env.data, snap.state, _STATE)
+        mujoco.mj_forward(env.model, env.data)
+        return (snap.task, snap.seed)
+
+    # ------------------------------------------------------------------ saver thread
+    def _saving_done(self) -> None:
+        with self._cond:
+            self._saving = max(0, self._saving - 1)
+
+    def _save_loop(self) -> None:
+        while True:
+            with self._save_cond:
+                while not self._save_queue:
+                    if self._closed and not self._render_busy_with_finish():
+                        return
+                    self._save_cond.wait(0.5)
+                recording, role = self._save_queue.popleft()
+            extra = {"session": self.id, "worker": self.worker}
+            try:
+                episode = self.destination.save(recording, role=role, source="teleop", extra=extra)
+                self._saving_done()
+                self._publish_status(
+                    msg.EpisodeSaved(
+                        session=self.id,
+                        episode=episode,
+                        task=recording.task,
+                        role=role,
+                        steps=recording.num_steps,
+                        frames=len(recording.frames),
+                        success=bool(recording.success),
+                        via=self.destination.via,
+                    )
+                )
+            except ShipError as e:
+                self._saving_done()
+                self._publish_status(
+                    msg.EpisodeNotSaved(session=self.id, reason=str(e), kept_at=str(e.kept_at))
+                )
+            except Exception as e:
+                bus.log.exception("session %s: storing a recording failed", self.id)
+                kept = self._rescue(recording, role, extra)
+                self._saving_done()
+                self._publish_status(
+                    msg.EpisodeNotSaved(session=self.id, reason=f"{type(e).__name__}: {e}", kept_at=kept)
+                )
+            self._publish_status(self.state())
+
+    def _render_busy_with_finish(self) -> bool:
+        with self._render_cond:
+            return any(kind == "finish" for kind, _ in self._render_jobs) or self._saving > len(
+                self._save_queue
+            )
+
+    def _rescue(self, recording: Recording, role: str, extra: dict) -> str:
+        """Write a recording the store refused to the spool directory, so nothing is lost."""
+        try:
+            self.spool_dir.mkdir(parents=True, exist_ok=True)
+            path = self.spool_dir / f"unsaved-{self.id}-{int(time.time() * 1000)}.recording"
+            _write_durably(path, msg.encode(recording_payload(recording)))
+            return str(path)
+        except OSError as e:
+            bus.log.error("could not even spool the recording: %s", e)
+            return ""
+
+    # ------------------------------------------------------------------ closing
+    def close(self, wait_s: float = 60.0) -> None:
+        """Stop the session; recordings being finished or stored are completed first (up to ``wait_s``)."""
+        with self._cond:
+            if self._closed:
+                return
+            self._closed = True
+            self._cond.notify_all()
+        with self._render_cond:
+            self._render_cond.notify_all()
+        with self._save_cond:
+            self._save_cond.notify_all()
+        deadline = time.monotonic() + wait_s
+        for t in self._threads:
+            t.join(max(0.1, deadline - time.monotonic()))
+        self._publish_status(self.state("closed"))
+        for entity in (self._cmd_sub, self._pose_pub, self._frame_pub, self._status_pub):
+            try:
+                entity.undeclare()
+            except zenoh.ZError:
+                pass
+        self.env.close()

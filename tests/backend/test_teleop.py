@@ -1,0 +1,188 @@
+"""Teleop sessions through a real sim worker process: driving the arm, recording into the store (shared data
+directory and shipped over the bus), independent sessions, bad requests, clients that vanish, slow consumers."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from studio.backend import bus, keys
+from studio.backend import messages as msg
+from studio.backend.hub import Hub
+from studio.backend.teleop_client import TeleopClient, choose_sim_worker
+
+from .conftest import Workers, wait_worker
+
+pytestmark = pytest.mark.timeout(180)
+
+TASK = "pick_place/cube->red"
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    """A hub with its store, a sim worker sharing the hub's data directory and one shipping over the bus."""
+    tmp = tmp_path_factory.mktemp("teleop")
+    port = bus.free_loopback_port()
+    hub = Hub(bus.BusConfig.hub([bus.loopback_endpoint(port)]), data_dir=tmp / "data")
+    workers = Workers(bus.loopback_endpoint(port), tmp)
+    try:
+        workers.start("sim", "sim-local", "--data-dir", str(hub.data_dir), handlers=())
+        workers.start("sim", "sim-remote", handlers=())
+        wait_worker(hub.directory, "sim-local")
+        wait_worker(hub.directory, "sim-remote")
+        yield hub, workers
+    finally:
+        workers.close()
+        hub.close()
+
+
+def drive(client: TeleopClient, target: np.ndarray, gripper: float, ticks: int) -> msg.PoseFrame:
+    """Send ``target`` repeatedly for ``ticks`` acknowledged commands; returns the last pose."""
+    frame = None
+    for _ in range(ticks):
+        frame = client.wait_ack(client.set_target(target, gripper), timeout=2.0)
+        assert frame is not None, "command not acknowledged"
+    return frame
+
+
+def test_session_moves_the_arm_streams_poses_and_renders(site):
+    hub, _ = site
+    with TeleopClient(hub.session, "sim-local") as client:
+        info = client.open("pick_place", "panda", TASK, seed=3)
+        assert info.task == TASK and info.seed == 3 and info.worker == "sim-local"
+        assert "external" in info.cameras and info.body_names[0] == "world"
+        assert info.camera["width"] == 320 and info.control_dt == pytest.approx(0.016)
+        first = client.poses.wait_until(lambda f: True, 5.0)
+        assert first.body_count == len(info.body_names)
+        start = np.asarray(first.ee_pos)
+        target = start + np.array([0.06, 0.0, 0.08])
+        last = drive(client, target, gripper=1.0, ticks=60)
+        assert np.linalg.norm(np.asarray(last.ee_pos) - target) < 0.02, (last.ee_pos, target)
+        assert last.gripper == 1.0 and last.step > first.step
+        # The pose rows are MuJoCo bodies: the hand moved with the grasp point.
+        moved = np.linalg.norm(last.poses_array()[:, :3] - first.poses_array()[:, :3], axis=1)
+        assert moved.max() > 0.05
+        # Without commands the simulation keeps running at its own pace.
+        s0 = client.latest_pose().step
+        time.sleep(0.5)
+        assert client.latest_pose().step - s0 >= 10
+        image = client.request_frame(encoding="raw")
+        assert (image.height, image.width) == (240, 320) and image.to_array().std() > 5
+        jpeg = client.request_frame(camera="wrist", encoding="jpeg", quality=70)
+        assert jpeg.to_array().ndim == 3
+        geometry = client.geometry()
+        assert geometry.body_names == info.body_names and geometry.meshes
+        assert all(g.group <= 2 for g in geometry.geoms)
+        client.stream_frames(hz=10.0)
+        streamed = client.frames.wait_until(lambda f: f.camera == "external" and f.step > image.step, 5.0)
+        assert streamed is not None
+        client.stream_frames(hz=0.0)
+        info2 = client.reset(task="pick_place/prism->blue", seed=4)
+        assert info2.task == "pick_place/prism->blue"
+
+
+@pytest.mark.parametrize("worker, via", [("sim-local", "data-dir"), ("sim-remote", "bus")])
+def test_recorded_episode_lands_in_the_hub_store(site, worker, via):
+    hub, _ = site
+    before = {m.id for m in hub.store.episodes()}
+    with TeleopClient(hub.session, worker) as client:
+        client.open("pick_place", "panda", TASK, seed=5)
+        state = client.start_recording()
+        assert state.state == "recording" and state.recorded_steps == 1
+        start = np.asarray(client.poses.wait_until(lambda f: True, 5.0).ee_pos)
+        drive(client, start + np.array([0.0, 0.05, -0.05]), gripper=0.0, ticks=30)
+        saved = client.stop_recording(timeout=120)
+        assert isinstance(saved, msg.EpisodeSaved), saved
+        assert saved.via == via and saved.role == "agent" and saved.steps >= 30 and saved.frames >= 20
+    episodes = [m for m in hub.store.episodes() if m.id not in before]
+    assert [m.id for m in episodes] == [saved.episode]
+    meta = episodes[0]
+    assert meta.source == "teleop" and meta.embodiment == "panda" and meta.task == TASK and meta.seed == 5
+    assert meta.num_steps == saved.steps and meta.extra["worker"] == worker
+    episode = hub.store.load(saved.episode)
+    assert episode.frames.shape[0] == saved.frames
+    ee = episode.arrays["ee_pos_world"]
+    assert ee[-1][1] - ee[0][1] > 0.02  # the recorded arm followed the commands
+
+
+def test_two_clients_get_independent_sessions(site):
+    hub, _ = site
+    with TeleopClient(hub.session, "sim-local") as a, TeleopClient(hub.session, "sim-local") as b:
+        assert a.session_id != b.session_id
+        a.open("pick_place", "panda", TASK, seed=1)
+        b.open("push", "panda", "push/red-forward", seed=2)
+        b0 = np.asarray(b.poses.wait_until(lambda f: True, 5.0).ee_pos)
+        a0 = np.asarray(a.poses.wait_until(lambda f: True, 5.0).ee_pos)
+        drive(a, a0 + np.array([0.0, 0.0, 0.1]), gripper=1.0, ticks=40)
+        b_now = b.latest_pose()
+        assert np.linalg.norm(np.asarray(b_now.ee_pos) - b0) < 0.01 and b_now.ack_seq == -1
+        assert a.latest_pose().ee_pos[2] > a0[2] + 0.07
+        status = hub.directory.get("sim", "sim-local").status
+        assert status.sessions == 2
+        a.close()
+        assert b.wait_ack(b.set_target(b0 + np.array([0.03, 0.0, 0.0]), 0.0)) is not None  # b is unaffected
+    assert hub.directory.wait_for(lambda ws: hub.directory.get("sim", "sim-local").status.sessions == 0, 10)
+
+
+def test_bad_requests_get_clear_errors_and_the_session_survives(site):
+    hub, _ = site
+    with TeleopClient(hub.session, "sim-local") as client:
+        with pytest.raises(bus.RemoteError, match="bad_request: unknown task"):
+            client.open("pick_place", "panda", "pick_place/nothing->nowhere", seed=0)
+        with pytest.raises(bus.RemoteError, match="not_found"):
+            client.start_recording()
+        client.open("pick_place", "panda", TASK, seed=0)
+        with pytest.raises(bus.RemoteError, match="belongs to scene"):
+            client.reset(task="push/red-forward")
+        with pytest.raises(bus.RemoteError, match="unknown camera"):
+            client.request_frame(camera="nope")
+        with pytest.raises(bus.RemoteError, match="conflict: not recording"):
+            client.stop_recording()
+        client.start_recording()
+        with pytest.raises(bus.RemoteError, match="recording too short"):
+            client.stop_recording()
+        assert client.discard_recording().state == "idle"
+        # Garbage on the control key and on the command stream.
+        replies = list(
+            hub.session.get(
+                keys.session_key("sim-local", client.session_id, "ctl"), payload=b"\x01\x92\xa3bad", timeout=3
+            )
+        )
+        assert msg.decode(replies[0].ok.payload.to_bytes(), msg.ErrorReply).code == "bad_request"
+        hub.session.put(keys.session_key("sim-local", client.session_id, "cmd"), b"\x01\xff\x00")
+        assert client.wait_ack(client.set_target([0.0, 0.4, 0.2], 0.0)) is not None
+
+
+def test_session_closes_when_its_client_vanishes(site, port):
+    hub, _ = site
+    other = bus.open_session(bus.BusConfig.worker([hub.endpoint]))
+    client = TeleopClient(other, choose_sim_worker(hub.directory))
+    client.open("pick_place", "sawyer", TASK, seed=0)
+    worker = client.worker
+    assert hub.directory.wait_for(lambda ws: hub.directory.get("sim", worker).status.sessions >= 1, 5)
+    other.close()  # the client process "dies": its liveliness token disappears
+    assert hub.directory.wait_for(lambda ws: hub.directory.get("sim", worker).status.sessions == 0, 10)
+
+
+def test_slow_consumer_never_stalls_the_simulation(site):
+    hub, _ = site
+    slow = bus.open_session(bus.BusConfig.worker([hub.endpoint]))
+    try:
+        with TeleopClient(hub.session, "sim-remote") as client:
+            client.open("pick_place", "panda", TASK, seed=0)
+            stalled = []
+            sub = slow.declare_subscriber(
+                keys.session_key("sim-remote", client.session_id, "poses"),
+                lambda sample: (stalled.append(1), time.sleep(0.5)),
+            )
+            first = client.poses.wait_until(lambda f: True, 5.0)
+            time.sleep(2.0)
+            last = client.latest_pose()
+            sub.undeclare()
+        # About 125 ticks in 2 s; the slow subscriber took at most a handful of them.
+        assert last.step - first.step > 60
+        assert 0 < len(stalled) < 10
+    finally:
+        slow.close()
