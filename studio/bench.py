@@ -10,6 +10,7 @@ import sys
 # target -> module exposing add_arguments(parser) and measure(args) -> dict
 TARGETS: dict[str, str] = {
     "sim": "studio.sim.bench",
+    "model": "studio.model.bench",
     "collect": "studio.data.bench",
     "bus": "studio.backend.bench",
 }

@@ -14,6 +14,8 @@ import sys
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("studio.bench", "run a benchmark and print one JSON object"),
+    "train": ("studio.model.train_command", "train OSVI-WM on recorded episodes (resumable, torchrun-ready)"),
+    "train-decoder": ("studio.model.decoder_command", "train the latent image decoder of a trained model"),
     "collect": ("studio.data.collect", "collect scripted expert/agent episodes in parallel (resumable)"),
     "import-video": ("studio.data.video_import", "store a human demonstration video as an expert episode"),
     "export": ("studio.data.export_command", "export episodes as a LeRobot v3.0 dataset"),

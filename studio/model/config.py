@@ -291,3 +291,38 @@ def preset(name: str) -> RunConfig:
         train = TrainConfig(batch_size=16, epochs=10.0, val_every=250, checkpoint_every=100)
         return RunConfig(model, train)
     raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
+
+
+@dataclass
+class DecoderConfig:
+    """The latent image decoder and its training (``decoder``, ``train_decoder``).
+
+    Attributes:
+        base_channels: channels of the smallest feature map; halved at each upsampling stage (floor 16).
+        stages: stride-2 transposed convolutions; the decoder starts at (H, W) / 2**stages.
+        noise_std: Gaussian noise added to the pooled keypoints during training, so the decoder also renders the
+            slightly-off keypoints the world model predicts.
+        batch_size: pairs per step (all their expert and agent frames are decoded).
+        steps, lr, weight_decay: AdamW with a cosine decay from ``lr`` to lr / 100 over ``steps``.
+        seed, val_every, val_batches, checkpoint_every, log_every, num_workers: as in ``TrainConfig``.
+    """
+
+    base_channels: int = 256
+    stages: int = 4
+    noise_std: float = 0.05
+    batch_size: int = 8
+    steps: int = 2000
+    lr: float = 1e-3
+    weight_decay: float = 1e-5
+    seed: int = 0
+    val_every: int = 250
+    val_batches: int = 10
+    checkpoint_every: int = 100
+    log_every: int = 10
+    num_workers: int = 1
+
+    def __post_init__(self) -> None:
+        if self.stages < 1 or self.base_channels < 16:
+            raise ValueError(f"DecoderConfig needs stages >= 1 and base_channels >= 16, got {self}")
+        if self.noise_std < 0:
+            raise ValueError(f"noise_std must be >= 0, got {self.noise_std}")

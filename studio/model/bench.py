@@ -1,0 +1,157 @@
+"""`studio bench model`: training throughput, planning latency and size of OSVI-WM for a preset.
+
+Measured on random inputs with the real code paths: one training step = augmentation + mixup, forward with
+world-model targets, both losses, backward, gradient clipping and an AdamW step; one plan = ``Planner.plan`` at
+batch 1 from uint8 frames at the model's resolution (cold: the expert video is encoded; ``replan_ms``: the same
+demonstration again, whose context is reused). Defaults reproduce the reference study's CPU setting — batch 2,
+N = 10, M = 6, fp32, 2 threads, random init — whose figures are reported alongside: the authors' model takes
+7.8 s per forward+backward at 240×320 (0.26 samples/s) and 0.79 s at 96×128 (2.5 samples/s), and 1.3 s / 0.14 s
+per plan. ``pairs_per_expert = 2`` additionally measures a batch whose two pairs share one demonstration, the
+grouping the training loop uses. The median of ``--reps`` repetitions after ``--warmup`` is reported; the machine
+load average is included because shared machines make these numbers noisy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+import numpy as np
+import torch
+
+from studio.model.batching import Batch
+from studio.model.config import PRESETS, preset
+from studio.model.osvi_wm import OSVIWM, count_parameters
+from studio.model.planner import Planner
+from studio.model.train import compute_losses
+
+# The reference study's CPU anchors (2 vCPU, fp32, batch 2, N = 10, M = 6), keyed by input size.
+REFERENCE = {
+    (240, 320): {"train_samples_per_s": 0.26, "plan_latency_ms": 1300.0},
+    (96, 128): {"train_samples_per_s": 2.5, "plan_latency_ms": 140.0},
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", choices=PRESETS, default="cpu", help="model/train preset (default: cpu)")
+    parser.add_argument("--image-size", default=None, help="override the input size, e.g. 96x128")
+    parser.add_argument(
+        "--batch", type=int, default=2, help="pairs per training step (default 2, the reference's)"
+    )
+    parser.add_argument("--reps", type=int, default=5, help="timed repetitions (median reported)")
+    parser.add_argument("--warmup", type=int, default=2, help="untimed repetitions first")
+    parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument("--precision", choices=("fp32", "bf16"), default="fp32")
+    parser.add_argument("--device", default="cpu")
+
+
+def _batch(b: int, u: int, n: int, m: int, size: tuple[int, int], g: torch.Generator) -> Batch:
+    h, w = size
+    f = 0.9 * w
+    K = torch.tensor([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]], dtype=torch.float32)
+    path = torch.rand(b, 50, 4, generator=g) * torch.tensor([0.4, 0.3, 0.3, 1.0]) + torch.tensor(
+        [-0.2, -0.15, 0.9, 0]
+    )
+    return Batch(
+        expert_frames=torch.randint(0, 256, (u, n, 3, h, w), generator=g, dtype=torch.uint8),
+        agent_frames=torch.randint(0, 256, (b, m, 3, h, w), generator=g, dtype=torch.uint8),
+        path=path,
+        K=K.expand(b, 3, 3).clone(),
+        T_world_cam=torch.eye(4).expand(b, 4, 4).clone(),
+        expert_ids=torch.arange(b) * u // b,
+        expert_tasks=torch.arange(u),
+        agent_tasks=torch.arange(b) * u // b,
+    )
+
+
+def _time(fn, warmup: int, reps: int) -> list[float]:
+    for _ in range(warmup):
+        fn()
+    out = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t)
+    return out
+
+
+def _train_step_times(model, run, batch, warmup, reps, device) -> list[float]:
+    opt = torch.optim.AdamW(model.parameters(), lr=run.train.lr_max)
+    g = torch.Generator().manual_seed(0)
+    model.train()
+
+    def step() -> None:
+        loss, _ = compute_losses(model, model, batch.to(device), run, 0, 1000, g)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), run.train.grad_clip)
+        opt.step()
+
+    return _time(step, warmup, reps)
+
+
+def measure(args: argparse.Namespace) -> dict:
+    torch.set_num_threads(args.threads)
+    overrides = [f"train.precision={args.precision}"]
+    if args.image_size:
+        h, w = (int(v) for v in args.image_size.lower().split("x"))
+        overrides.append(f"model.image_size=[{h}, {w}]")
+    run = preset(args.config).with_overrides(overrides)
+    mc = run.model
+    device = torch.device(args.device)
+    torch.manual_seed(0)
+    model = OSVIWM(mc).to(device)
+    g = torch.Generator().manual_seed(0)
+    n, m, size = mc.n_expert_frames, mc.n_agent_frames, tuple(mc.image_size)
+    train_times = _train_step_times(
+        model, run, _batch(args.batch, args.batch, n, m, size, g), args.warmup, args.reps, device
+    )
+    shared_u = max(1, args.batch // 2)
+    shared_times = _train_step_times(
+        model, run, _batch(args.batch, shared_u, n, m, size, g), args.warmup, args.reps, device
+    )
+
+    planner = Planner(model, device)
+    expert = np.random.default_rng(0).integers(0, 256, (n, *size, 3), dtype=np.uint8)
+    K = np.array([[0.9 * size[1], 0, size[1] / 2], [0, 0.9 * size[1], size[0] / 2], [0, 0, 1]])
+
+    def cold_plan() -> None:
+        planner.clear_cache()
+        planner.plan(expert, expert[0], K, np.eye(4))
+
+    plan_times = _time(cold_plan, args.warmup, args.reps)
+    planner.plan(expert, expert[0], K, np.eye(4))
+    replan_times = _time(lambda: planner.plan(expert, expert[-1], K, np.eye(4)), 1, args.reps)
+
+    step_s = statistics.median(train_times)
+    result = {
+        "target": "model",
+        "config": args.config,
+        "image_size": list(size),
+        "state_shape": list(model.state_shape),
+        "params": count_parameters(model),
+        "batch": args.batch,
+        "n_expert": n,
+        "n_agent": m,
+        "threads": args.threads,
+        "precision": args.precision,
+        "train_step_s": round(step_s, 4),
+        "train_step_s_min": round(min(train_times), 4),
+        "train_samples_per_s": round(args.batch / step_s, 3),
+        "train_samples_per_s_shared_expert": round(args.batch / statistics.median(shared_times), 3),
+        "plan_latency_ms": round(1e3 * statistics.median(plan_times), 2),
+        "plan_latency_ms_min": round(1e3 * min(plan_times), 2),
+        "replan_ms": round(1e3 * statistics.median(replan_times), 2),
+        "load_average": [round(v, 2) for v in os.getloadavg()],
+        "torch": torch.__version__,
+    }
+    ref = REFERENCE.get(size)
+    if ref is not None:
+        result["reference"] = ref
+        result["train_speedup_vs_reference"] = round(
+            result["train_samples_per_s"] / ref["train_samples_per_s"], 2
+        )
+        result["plan_speedup_vs_reference"] = round(ref["plan_latency_ms"] / result["plan_latency_ms"], 2)
+    return result

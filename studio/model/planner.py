@@ -1,0 +1,164 @@
+"""The planning API: expert video + the agent's current frame → 5 attributed waypoints in the world frame.
+
+``Planner.load(checkpoint).plan(expert_frames, agent_frame, K, T_world_cam)`` accepts uint8 frames in either
+layout ((N, H, W, 3) or (N, 3, H, W); the agent frame (H, W, 3) or (3, H, W)) at any resolution: frames are
+resized to the model's input size and the intrinsics scaled with them (K must belong to the agent frame's size).
+A video with a different number of frames than the model's N is resampled to N evenly spaced frames (first and
+last kept). The result holds the 5-waypoint set in camera and world coordinates — xyz in metres plus the gripper
+probability (closed when > 0.5) — and the predicted latent trajectory (maps and pooled keypoints) for
+visualisation with the latent decoder.
+
+Re-planning with the same demonstration reuses the expert context (its encodings and the action model's cache):
+only the new agent frame is encoded. Runs in eval mode under ``torch.inference_mode``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from studio.model.geometry import camera_to_world, resize_intrinsics
+from studio.model.osvi_wm import OSVIWM, waypoint_set
+from studio.model.transformer import KVCache
+
+
+@dataclass
+class PlanResult:
+    """One plan.
+
+    Attributes:
+        waypoints_world: (5, 4) x, y, z (world frame, metres) + gripper probability.
+        waypoints_cam: (5, 4) the same in the camera frame (x right, y down, z forward).
+        latent_states: (S, *state_shape) predicted latent states r_2..r_M.
+        pooled_states: (S, 2C) their spatial-softmax keypoints (the latent decoder's input).
+        timing: milliseconds of each stage (preprocess, encode, rollout, head, total).
+        reused_expert_context: whether the expert context came from the previous call.
+    """
+
+    waypoints_world: np.ndarray
+    waypoints_cam: np.ndarray
+    latent_states: np.ndarray
+    pooled_states: np.ndarray
+    timing: dict[str, float] = field(default_factory=dict)
+    reused_expert_context: bool = False
+
+    @property
+    def gripper_closed(self) -> np.ndarray:
+        return self.waypoints_world[:, 3] > 0.5
+
+
+def _chw(frames: np.ndarray | torch.Tensor, what: str, video: bool) -> torch.Tensor:
+    x = torch.as_tensor(np.asarray(frames))
+    want = 4 if video else 3
+    if x.ndim != want:
+        raise ValueError(
+            f"{what} must have {want} dimensions ({'N, ' if video else ''}H, W, 3 or 3, H, W), got {tuple(x.shape)}"
+        )
+    if x.dtype != torch.uint8:
+        raise ValueError(f"{what} must be uint8 images, got {x.dtype}")
+    if x.shape[-1] == 3 and x.shape[-3] != 3:
+        x = x.movedim(-1, -3)
+    if x.shape[-3] != 3:
+        raise ValueError(f"{what} must have 3 colour channels, got shape {tuple(x.shape)}")
+    return x if video else x.unsqueeze(0)
+
+
+def _resize(frames: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    if tuple(frames.shape[-2:]) == tuple(size):
+        return frames
+    out = F.interpolate(
+        frames.float(), size=tuple(size), mode="bilinear", antialias=True, align_corners=False
+    )
+    return out.round().clamp(0, 255).to(torch.uint8)
+
+
+class Planner:
+    """A trained OSVI-WM model ready to plan."""
+
+    def __init__(self, model: OSVIWM, device: str | torch.device = "cpu") -> None:
+        self.device = torch.device(device)
+        self.model = model.to(self.device).eval()
+        self.cfg = model.cfg
+        self._context_key: str | None = None
+        self._context: KVCache | None = None
+
+    @classmethod
+    def load(cls, checkpoint: str | Path, device: str | torch.device = "cpu") -> Planner:
+        from studio.model.train import load_checkpoint, model_from_checkpoint
+
+        return cls(model_from_checkpoint(load_checkpoint(checkpoint, "cpu")), device)
+
+    def clear_cache(self) -> None:
+        self._context_key, self._context = None, None
+
+    @torch.inference_mode()
+    def plan(
+        self,
+        expert_frames: np.ndarray | torch.Tensor,
+        agent_frame: np.ndarray | torch.Tensor,
+        K: np.ndarray,
+        T_world_cam: np.ndarray,
+    ) -> PlanResult:
+        """Plan the 5 waypoints (see the module docstring)."""
+        t0 = time.perf_counter()
+        expert = _chw(expert_frames, "expert_frames", video=True)
+        agent = _chw(agent_frame, "agent_frame", video=False)
+        K = np.asarray(K, dtype=np.float64)
+        T = np.asarray(T_world_cam, dtype=np.float64)
+        if K.shape != (3, 3) or T.shape != (4, 4):
+            raise ValueError(f"K must be (3, 3) and T_world_cam (4, 4), got {K.shape} and {T.shape}")
+        n = self.cfg.n_expert_frames
+        if expert.shape[0] < 1:
+            raise ValueError("expert_frames is empty")
+        if expert.shape[0] != n:
+            expert = expert[np.round(np.linspace(0, expert.shape[0] - 1, n)).astype(int)]
+        size = tuple(self.cfg.image_size)
+        K_model = resize_intrinsics(torch.as_tensor(K), tuple(agent.shape[-2:]), size)
+        expert = _resize(expert, size).to(self.device)
+        agent = _resize(agent, size).to(self.device)
+        key = hashlib.sha1(expert.cpu().numpy().tobytes()).hexdigest()
+        t1 = time.perf_counter()
+
+        model = self.model
+        reused = key == self._context_key and self._context is not None
+        if reused:
+            agent_state = model.encode(agent)
+            context = self._context
+        else:
+            encoded = model.encode(torch.cat([expert, agent], 0))
+            agent_state = encoded[n:]
+            context = model.action_model.context(encoded[:n].unsqueeze(0))
+            self._context_key, self._context = key, context
+        t2 = time.perf_counter()
+        _, states = model.rollout_from_context(context, agent_state)
+        pooled = model.pool(states)
+        t3 = time.perf_counter()
+        raw = model.predict_waypoints(pooled)
+        decoded = model.decode_waypoints(
+            waypoint_set(raw, self.cfg.max_waypoints), K_model[None].to(self.device)
+        )
+        p_cam = decoded["position"][0].double()
+        p_world = camera_to_world(p_cam[None], torch.as_tensor(T, device=self.device)[None])[0]
+        grip = decoded["gripper"][0].double()[:, None]
+        t4 = time.perf_counter()
+        ms = {
+            "preprocess": 1e3 * (t1 - t0),
+            "encode": 1e3 * (t2 - t1),
+            "rollout": 1e3 * (t3 - t2),
+            "head": 1e3 * (t4 - t3),
+            "total": 1e3 * (t4 - t0),
+        }
+        return PlanResult(
+            waypoints_world=torch.cat([p_world, grip], 1).cpu().numpy(),
+            waypoints_cam=torch.cat([p_cam, grip], 1).cpu().numpy(),
+            latent_states=states[0].float().cpu().numpy(),
+            pooled_states=pooled[0].float().cpu().numpy(),
+            timing=ms,
+            reused_expert_context=reused,
+        )

@@ -1,0 +1,231 @@
+"""Training of the latent image decoder with the main OSVI-WM model frozen.
+
+Each step encodes every expert and agent frame of a batch of training pairs with the frozen model (no gradient),
+pools them to keypoints, adds Gaussian noise (``noise_std``) and trains the decoder to reproduce the frames
+(mean squared error in [0, 1] RGB). Only the main model's *training tasks* are used: the dataset's task list must
+be a subset of the tasks stored in the model checkpoint, otherwise training refuses to start (the reference
+trained its decoder on a test task). Validation, on held-out episodes of the same tasks, reports two errors:
+``val_recon_mse`` (decoding the encodings of real frames) and ``val_pred_mse`` (decoding the world model's
+predicted states against the real future agent frames) — the second is what the UI shows.
+
+Run directory: ``decoder_config.json``, ``metrics.jsonl``, ``last.pt`` (resumable, same step seeding as the main
+loop) and ``best.pt`` (lowest ``val_pred_mse``); ``load_decoder`` reads either.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import math
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+from torch.utils.data import DataLoader
+
+from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs
+from studio.model.config import DecoderConfig
+from studio.model.decoder import LatentDecoder
+from studio.model.osvi_wm import OSVIWM
+from studio.model.run_files import (
+    append_jsonl,
+    atomic_save,
+    is_cancelled,
+    step_seed,
+    trim_metrics,
+    write_json,
+)
+from studio.model.train import TrainResult, load_checkpoint, model_from_checkpoint
+
+DECODER_FORMAT = "osvi-wm-decoder/1"
+
+
+def load_decoder(path: str | Path, device: str | torch.device = "cpu") -> LatentDecoder:
+    """A trained decoder in eval mode."""
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    if not isinstance(ckpt, dict) or ckpt.get("format") != DECODER_FORMAT:
+        raise ValueError(f"{path} is not a latent-decoder checkpoint (format {DECODER_FORMAT})")
+    decoder = LatentDecoder(ckpt["in_dim"], tuple(ckpt["image_size"]), DecoderConfig(**ckpt["config"]))
+    decoder.load_state_dict(ckpt["decoder"])
+    return decoder.to(device).eval()
+
+
+def _model_id(ckpt: dict[str, Any]) -> str:
+    h = hashlib.sha1(repr((ckpt["config"], ckpt["dataset_fingerprint"], ckpt["step"])).encode())
+    return h.hexdigest()[:16]
+
+
+def _frames(model: OSVIWM, batch: Batch) -> torch.Tensor:
+    return torch.cat([batch.expert_frames.flatten(0, 1), batch.agent_frames.flatten(0, 1)], 0)
+
+
+@torch.no_grad()
+def _keypoints(model: OSVIWM, frames: torch.Tensor) -> torch.Tensor:
+    return model.pool(model.encode(frames)).float()
+
+
+@torch.no_grad()
+def validate_decoder(
+    decoder: LatentDecoder, model: OSVIWM, source: PairSource, cfg: DecoderConfig, device: torch.device
+) -> dict[str, float]:
+    bs = min(cfg.batch_size, len(source))
+    n = len(source) // bs
+    if cfg.val_batches > 0:
+        n = min(n, cfg.val_batches)
+    starts = np.linspace(0, len(source) - bs, n).round().astype(int)
+    decoder.eval()
+    recon = pred = 0.0
+    try:
+        for s in starts:
+            samples = [source[int(i)] for i in range(s, s + bs)]
+            batch = collate_pairs(
+                samples, model.cfg.image_size, model.cfg.n_expert_frames, model.cfg.n_agent_frames
+            )
+            batch = batch.to(device)
+            frames = _frames(model, batch)
+            recon += float(F.mse_loss(decoder(_keypoints(model, frames)), frames.float() / 255)) / len(starts)
+            out = model(batch.expert_frames, batch.agent_frames, batch.expert_ids)
+            future = batch.agent_frames[:, model.target_frame_indices()][:, : out.pooled.shape[1]]
+            pred += float(F.mse_loss(decoder(out.pooled.float()), future.float() / 255)) / len(starts)
+    finally:
+        decoder.train()
+    return {"val_recon_mse": recon, "val_pred_mse": pred}
+
+
+def train_decoder(
+    model_checkpoint: str | Path,
+    train_set: PairSource,
+    val_set: PairSource | None,
+    out_dir: str | Path,
+    cfg: DecoderConfig,
+    *,
+    device: str | torch.device = "cpu",
+    progress: Callable[[dict[str, Any]], None] | None = None,
+    cancel: Any = None,
+    show_progress: bool = True,
+    resume: bool = True,
+) -> TrainResult:
+    """Train a ``LatentDecoder`` for the frozen model in ``model_checkpoint`` (see the module docstring)."""
+    device = torch.device(device)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    main_ckpt = load_checkpoint(model_checkpoint)
+    unknown = sorted(set(train_set.tasks) - set(main_ckpt["tasks"]))
+    if unknown:
+        raise ValueError(
+            f"the decoder trains on the model's training tasks only; this dataset has other tasks: {', '.join(unknown)}"
+        )
+    model = model_from_checkpoint(main_ckpt, device).eval()
+    model.requires_grad_(False)
+    torch.manual_seed(cfg.seed)
+    decoder = LatentDecoder(model.pooled_dim, model.cfg.image_size, cfg).to(device)
+    optimizer = torch.optim.AdamW(decoder.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    total = cfg.steps
+    scheduler = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda s: 0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(s / max(total - 1, 1), 1.0)))
+    )
+    model_id = _model_id(main_ckpt)
+    fingerprint = train_set.fingerprint()
+    config = dataclasses.asdict(cfg)
+    start, best = 0, None
+    if resume and (out / "last.pt").exists():
+        ckpt = torch.load(out / "last.pt", map_location=device, weights_only=False)
+        if ckpt.get("model_id") != model_id or ckpt.get("dataset_fingerprint") != fingerprint:
+            raise ValueError(
+                f"{out / 'last.pt'} belongs to another model or dataset; use another --out or --restart"
+            )
+        decoder.load_state_dict(ckpt["decoder"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        scheduler.load_state_dict(ckpt["scheduler"])
+        start, best = int(ckpt["step"]), ckpt.get("best_val_pred_mse")
+    write_json(out / "decoder_config.json", {"config": config, "model_checkpoint": str(model_checkpoint),
+                                             "model_id": model_id, "dataset_fingerprint": fingerprint})  # fmt: skip
+    metrics = out / "metrics.jsonl"
+    trim_metrics(metrics, start)
+
+    def save(step: int, name: str) -> None:
+        atomic_save(
+            {
+                "format": DECODER_FORMAT, "config": config, "in_dim": model.pooled_dim,
+                "image_size": list(model.cfg.image_size), "model_id": model_id, "dataset_fingerprint": fingerprint,
+                "step": step, "best_val_pred_mse": best, "decoder": decoder.state_dict(),
+                "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+            },
+            out / name,
+        )  # fmt: skip
+
+    plan = BatchPlan(len(train_set), min(cfg.batch_size, len(train_set)), cfg.seed)
+    per_epoch = plan.batches_per_epoch
+    size = model.cfg.image_size
+
+    def batches(step: int):
+        while step < total:
+            epoch, offset = divmod(step, per_epoch)
+            chunks = plan.epoch(epoch)[offset:][: total - step]
+            if hasattr(train_set, "set_epoch"):
+                train_set.set_epoch(epoch)
+            loader = DataLoader(
+                train_set, batch_sampler=chunks, num_workers=cfg.num_workers,
+                collate_fn=functools.partial(collate_pairs, image_size=size),
+            )  # fmt: skip
+            for b in loader:
+                yield step, b
+                step += 1
+
+    bar = None
+    if show_progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, initial=start, desc="train-decoder", unit="step", file=sys.stderr)
+    status, step, record, sums, n_sum = "finished", start, {}, 0.0, 0
+    t_start = time.perf_counter()
+    decoder.train()
+    try:
+        for step, batch in batches(start):
+            g = torch.Generator(device="cpu").manual_seed(step_seed(cfg.seed, step))
+            frames = _frames(model, batch.to(device))
+            keys = _keypoints(model, frames)
+            noise = torch.randn(keys.shape, generator=g).to(device) * cfg.noise_std
+            loss = F.mse_loss(decoder(keys + noise), frames.float() / 255)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            lr = optimizer.param_groups[0]["lr"]
+            scheduler.step()
+            done = step + 1
+            value = float(loss.detach())
+            sums, n_sum = sums + value, n_sum + 1
+            if done % cfg.log_every == 0 or done == total:
+                record = {"step": done, "loss_mse": sums / n_sum, "lr": lr}
+                append_jsonl(metrics, record)
+                sums, n_sum = 0.0, 0
+            if val_set is not None and (done % cfg.val_every == 0 or done == total):
+                val = validate_decoder(decoder, model, val_set, cfg, device)
+                append_jsonl(metrics, {"step": done, "split": "val", **val})
+                if best is None or val["val_pred_mse"] < best:
+                    best = val["val_pred_mse"]
+                    save(done, "best.pt")
+            stop = is_cancelled(cancel)
+            if done % cfg.checkpoint_every == 0 or done == total or stop:
+                save(done, "last.pt")
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(mse=f"{value:.4f}")
+            if progress is not None:
+                rate = (done - start) / max(time.perf_counter() - t_start, 1e-9)
+                progress({"step": done, "total_steps": total, "loss": value, "lr": lr,
+                          "eta_s": (total - done) / max(rate, 1e-9)})  # fmt: skip
+            step = done
+            if stop:
+                status = "cancelled"
+                break
+    finally:
+        if bar is not None:
+            bar.close()
+    return TrainResult(status, step, total, out, best, record)

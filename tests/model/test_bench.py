@@ -1,0 +1,24 @@
+"""`studio bench model` returns the documented keys (timings are not asserted: they belong to benchmarks)."""
+
+from __future__ import annotations
+
+import argparse
+
+import torch
+
+from studio.model import bench
+
+torch.set_num_threads(1)
+
+
+def test_measure_reports_throughput_latency_and_size():
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    args = parser.parse_args(["--config", "cpu", "--image-size", "96x128", "--reps", "1", "--warmup", "0",
+                              "--threads", "1"])  # fmt: skip
+    result = bench.measure(args)
+    for key in ("train_samples_per_s", "train_samples_per_s_shared_expert", "plan_latency_ms", "replan_ms"):
+        assert result[key] > 0
+    assert result["image_size"] == [96, 128] and result["state_shape"] == [64, 6, 8]
+    assert result["params"] > 1_000_000 and result["batch"] == 2 and result["n_expert"] == 10
+    assert result["reference"]["train_samples_per_s"] == 2.5 and "train_speedup_vs_reference" in result
