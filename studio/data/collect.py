@@ -7,6 +7,10 @@ by making only the slots the catalog does not have yet. Failed scripted episodes
 retried with the next attempt's seed, up to ``--max-attempts`` times, and the failures are counted.
 
 The robot decides the role: the Sawyer demonstrates (``expert``) and the Panda imitates (``agent``).
+Meta-World (``--scene metaworld``) has only the Sawyer and its own scripted policies
+(:mod:`studio.sim.metaworld_experts`); as in the paper, expert and agent come from the same pool, so its
+episodes are stored once, as role ``expert`` with embodiment ``sawyer``, and the training view pairs the
+pool with itself (``PairDataset(..., scene="metaworld", agent_roles=("expert",))``).
 Frames are rendered only for the stored frames (``--min-frames``, ≥ 20), arrays at the full control rate.
 """
 
@@ -32,6 +36,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 ROLE_OF_ROBOT = {"sawyer": "expert", "panda": "agent"}
 DEFAULT_RECORDER = "studio.sim.experts:record_expert"
+#: Scenes whose scripted experts are not :data:`DEFAULT_RECORDER`.
+RECORDER_OF_SCENE = {"metaworld": "studio.sim.metaworld_experts:record_expert"}
 MIN_FRAMES = 20
 
 
@@ -41,7 +47,9 @@ class CollectConfig:
 
     Attributes:
         tasks: full task names, or ``["all"]`` / ``["train"]`` / ``["test"]`` for the scene's tasks or its split.
-        recorder: ``"module:function"`` with the signature of :func:`studio.sim.experts.record_expert`.
+        image_size: (H, W) of the stored frames; None: the scene's default (240×320, Meta-World 224×224).
+        recorder: ``"module:function"`` with the signature of :func:`studio.sim.experts.record_expert`;
+            None: the scene's scripted experts.
     """
 
     scene: str = "pick_place"
@@ -50,11 +58,11 @@ class CollectConfig:
     episodes: int = 100
     workers: int = 1
     seed: int = 0
-    image_size: tuple[int, int] = (240, 320)
+    image_size: tuple[int, int] | None = None
     min_frames: int = 20
     max_attempts: int = 5
     data_dir: str | None = None
-    recorder: str = DEFAULT_RECORDER
+    recorder: str | None = None
     progress: bool = True
 
     def __post_init__(self) -> None:
@@ -64,6 +72,18 @@ class CollectConfig:
             raise ValueError("episodes, workers and max_attempts must be at least 1")
         if self.min_frames < MIN_FRAMES:
             raise ValueError(f"episodes store at least {MIN_FRAMES} frames, got min_frames={self.min_frames}")
+        if self.scene == "metaworld" and self.robot != "sawyer":
+            raise ValueError(
+                "Meta-World has only the Sawyer: collect with --robot sawyer (its episodes serve as "
+                "both expert and agent)"
+            )
+        if self.image_size is None:
+            from studio.sim.env import default_image_size
+
+            self.image_size = default_image_size(self.scene)
+        self.image_size = (int(self.image_size[0]), int(self.image_size[1]))
+        if self.recorder is None:
+            self.recorder = RECORDER_OF_SCENE.get(self.scene, DEFAULT_RECORDER)
 
 
 @dataclass
@@ -144,9 +164,9 @@ def _init_worker(cfg_dict: dict) -> None:
     recorder = _load_recorder(cfg.recorder)
     env = None
     if "env" in inspect.signature(recorder).parameters:
-        from studio.sim.env import SimEnv
+        from studio.sim.env import make_env
 
-        env = SimEnv(cfg.scene, cfg.robot, image_size=tuple(cfg.image_size))
+        env = make_env(cfg.scene, cfg.robot, image_size=tuple(cfg.image_size))
     _WORKER.update(cfg=cfg, recorder=recorder, env=env, store=EpisodeStore(cfg.data_dir))
 
 
@@ -262,9 +282,12 @@ def _account(res, made, failed_attempts, missing, errors, bar) -> tuple[int, int
 
 # ---------------------------------------------------------------------- CLI
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scene", default="pick_place", help="scene family (pick_place, push)")
+    parser.add_argument("--scene", default="pick_place", help="scene family (pick_place, push, metaworld)")
     parser.add_argument(
-        "--robot", required=True, choices=sorted(ROLE_OF_ROBOT), help="sawyer = expert, panda = agent"
+        "--robot",
+        required=True,
+        choices=sorted(ROLE_OF_ROBOT),
+        help="sawyer = expert, panda = agent (metaworld: sawyer)",
     )
     parser.add_argument(
         "--tasks",
@@ -275,7 +298,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--episodes", type=int, default=100, help="episodes per task")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes")
     parser.add_argument("--seed", type=int, default=0, help="base seed of the run")
-    parser.add_argument("--image-size", type=int, nargs=2, default=(240, 320), metavar=("H", "W"))
+    parser.add_argument(
+        "--image-size",
+        type=int,
+        nargs=2,
+        default=None,
+        metavar=("H", "W"),
+        help="frame size (default: 240 320; metaworld 224 224)",
+    )
     parser.add_argument("--min-frames", type=int, default=20, help="frames stored per episode")
     parser.add_argument("--max-attempts", type=int, default=5, help="tries per slot before giving up")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -283,20 +313,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = CollectConfig(
-        scene=args.scene,
-        robot=args.robot,
-        tasks=list(args.tasks),
-        episodes=args.episodes,
-        workers=args.workers,
-        seed=args.seed,
-        image_size=tuple(args.image_size),
-        min_frames=args.min_frames,
-        max_attempts=args.max_attempts,
-        data_dir=args.data_dir,
-        progress=not args.no_progress,
-    )
     try:
+        cfg = CollectConfig(
+            scene=args.scene,
+            robot=args.robot,
+            tasks=list(args.tasks),
+            episodes=args.episodes,
+            workers=args.workers,
+            seed=args.seed,
+            image_size=tuple(args.image_size) if args.image_size else None,
+            min_frames=args.min_frames,
+            max_attempts=args.max_attempts,
+            data_dir=args.data_dir,
+            progress=not args.no_progress,
+        )
         result = collect(cfg)
     except ValueError as e:
         print(f"studio collect: {e}", file=sys.stderr)
