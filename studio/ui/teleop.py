@@ -16,7 +16,7 @@ from concurrent.futures import Future
 
 import numpy as np
 
-from studio.sim.env import SimEnv
+from studio.sim.env import make_env
 from studio.sim.recorder import Recorder
 from studio.sim.recording import Recording
 
@@ -26,7 +26,7 @@ class TeleopSession:
 
     def __init__(self, scene: str, robot: str, task: str, seed: int, on_tick=None):
         self.lock = threading.Lock()
-        self.env = SimEnv(scene, robot)
+        self.env = make_env(scene, robot)  # a SimEnv, or a MetaWorldEnv for scene 'metaworld'
         self.env.reset(task, seed)
         self.target = self.env.ee_pos.copy()
         self.gripper = 0.0
