@@ -75,8 +75,8 @@ def load_handler(ref: str) -> Handler:
         raise HandlerUnavailable(f"handler reference {ref!r} must look like 'package.module:function'")
     try:
         module = importlib.import_module(module_name)
-    except ImportError as e:
-        raise HandlerUnavailable(f"cannot import {module_name}: {e}") from None
+    except Exception as e:  # a broken module must not take the worker down with it
+        raise HandlerUnavailable(f"cannot import {module_name}: {type(e).__name__}: {e}") from None
     fn = getattr(module, attr, None)
     if not callable(fn):
         raise HandlerUnavailable(f"{module_name} has no function {attr!r}")
