@@ -48,9 +48,9 @@ JOB_KINDS: dict[str, JobKind] = {
     "train": JobKind(
         name="train",
         worker_kind="train",
-        handler="studio.model.train:run_training_job",
+        handler="studio.backend.train_job:run_training_job",
         requeue_on_worker_loss=True,
-        description="train OSVI-WM; spec: config, tasks, data_dir, run_dir (resumes from its last checkpoint)",
+        description="train OSVI-WM; spec: studio.backend.train_job.TrainJobSpec (resumes from run_dir)",
     ),
     "rollout": JobKind(
         name="rollout",
