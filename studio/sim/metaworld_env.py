@@ -14,8 +14,11 @@ stepping, so the waypoint controller, the recorder, rollouts and teleop work on 
   truncates, and wrappers around it auto-reset — the re-planning bug of the reference evaluation. We
   never call it: one control tick moves the mocap body welded to the hand (at most 1 cm per axis, the
   bound of Meta-World's own actions), sets the fingers and runs ``frame_skip`` (5) physics steps of
-  2.5 ms — a 12.5 ms tick, as in Meta-World. MuJoCo's automatic reset on divergence is disabled too; a
-  diverged simulation raises :class:`SimulationDiverged` instead of silently starting over.
+  2.5 ms — a 12.5 ms tick, as in Meta-World. :meth:`MetaWorldEnv.step` steers the mocap by the hand's
+  remaining error (Meta-World's scripted-policy control law), so the hand reaches its target even
+  while pressing a button or a door; :meth:`MetaWorldEnv.step_action` applies a Meta-World action
+  as such. MuJoCo's automatic reset on divergence is disabled too; a diverged simulation raises
+  :class:`SimulationDiverged` instead of silently starting over.
 * **The env's own success signal.** After every tick the env's ``evaluate_state`` judges the state
   (with the action that tick amounted to). :meth:`MetaWorldEnv.success` is latched — the task
   succeeded at some tick since reset, as in the paper's evaluation — and :meth:`MetaWorldEnv.stages`
@@ -60,6 +63,9 @@ EXTERNAL_FOVY = 30.0
 #: Seconds per control tick (Meta-World's frame_skip 5 × 2.5 ms) and largest mocap move per tick and axis, m.
 CONTROL_DT = 0.0125
 MAX_STEP = 0.01
+#: Fraction of the hand's remaining error the mocap moves per tick in :meth:`MetaWorldEnv.step` (the
+#: proportional gain 25 of Meta-World's pressing and door policies, times its 1 cm action scale).
+HAND_GAIN = 0.25
 #: The hand orientation Meta-World holds the mocap at (gripper pointing down).
 HAND_QUAT = np.array([1.0, 0.0, 1.0, 0.0])
 #: Names of the objects in :meth:`MetaWorldEnv.object_poses`, in Meta-World's observation order.
@@ -230,8 +236,14 @@ class MetaWorldEnv:
         self._evaluate()
 
     def step(self, target_pos: np.ndarray, gripper: float) -> None:
-        """One control tick: move the hand towards ``target_pos`` (clamped to the task's mocap box, at
-        most :attr:`max_step` per axis) with the gripper commanded to ``gripper`` (0 open … 1 closed)."""
+        """One control tick: steer the hand towards ``target_pos`` (clamped to the task's mocap box) with
+        the gripper commanded to ``gripper`` (0 open … 1 closed).
+
+        The mocap moves by :data:`HAND_GAIN` × (target − hand), at most :attr:`max_step` per axis — the
+        control law of Meta-World's own scripted policies. It acts on the hand's error, so the hand gets
+        to the target even when it pushes against something (a button, a door): the mocap runs ahead
+        and the weld presses harder, as in Meta-World.
+        """
         if self.task is None:
             raise RuntimeError("MetaWorldEnv.step called before reset()")
         target = np.asarray(target_pos, dtype=np.float64).reshape(3)
@@ -239,7 +251,8 @@ class MetaWorldEnv:
             target = self.target  # ignore a non-finite command, keep the last good one
         self.target = np.clip(target, self.workspace[0], self.workspace[1])
         g = float(gripper) if np.isfinite(gripper) else self.gripper_cmd
-        self._advance(self.target, float(np.clip(g, 0.0, 1.0)))
+        mocap = self.data.mocap_pos[self._mocap]
+        self._advance(mocap + HAND_GAIN * (self.target - self.ee_pos), float(np.clip(g, 0.0, 1.0)))
 
     def step_action(self, action: np.ndarray) -> None:
         """One control tick from a Meta-World action (dx, dy, dz, grab effort), each in [-1, 1].
@@ -257,6 +270,7 @@ class MetaWorldEnv:
         self._advance(self.target, (a[3] + 1.0) / 2.0)
 
     def _advance(self, target: np.ndarray, gripper: float) -> None:
+        """Move the mocap towards ``target`` (at most max_step per axis, inside the mocap box) and simulate."""
         m, d = self.model, self.data
         mocap = d.mocap_pos[self._mocap].copy()
         new = np.clip(

@@ -141,15 +141,17 @@ def test_object_orientation_is_wxyz(env):
 def test_step_moves_mocap_with_bounded_speed_and_clamps(env):
     env.reset("metaworld/reach-v3", 0)
     start = env.data.mocap_pos[0].copy()
-    env.step(start + np.array([0.5, 0.0, 0.0]), 1.0)
-    assert np.allclose(env.data.mocap_pos[0] - start, [0.01, 0.0, 0.0])
+    env.step(env.ee_pos + np.array([0.5, 0.0, 0.0]), 1.0)  # far: capped at 1 cm along x
+    assert np.allclose(env.data.mocap_pos[0] - start, [0.01, 0.0, 0.0], atol=1e-9)
+    env.step(env.ee_pos + np.array([0.0, 0.02, 0.0]), 1.0)  # near: a quarter of the hand's error
+    assert np.isclose(env.data.mocap_pos[0][1] - start[1], 0.25 * 0.02, atol=2e-3)
     assert env.gripper_cmd == 1.0 and np.allclose(env.data.ctrl, [1.0, -1.0])
     env.step(np.array([np.nan, 0, 0]), np.nan)  # ignored: keeps the last target and gripper
     assert env.gripper_cmd == 1.0 and np.all(np.isfinite(env.target))
     for _ in range(150):
         env.step(np.array([5.0, 5.0, 5.0]), 0.0)
     assert np.allclose(env.data.mocap_pos[0], env.workspace[1])
-    assert env.steps == 152 and np.isclose(env.data.time, 152 * env.control_dt)
+    assert env.steps == 153 and np.isclose(env.data.time, 153 * env.control_dt)
 
 
 def test_evaluation_episode_never_resets(env):
