@@ -13,6 +13,7 @@ TARGETS: dict[str, str] = {
     "model": "studio.model.bench",
     "collect": "studio.data.bench",
     "bus": "studio.backend.bench",
+    "metaworld": "studio.sim.metaworld_bench",
 }
 
 
