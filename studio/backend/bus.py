@@ -163,18 +163,18 @@ class BusConfig:
 
 def add_bus_arguments(parser: argparse.ArgumentParser, role: Literal["worker", "hub"]) -> None:
     """``--connect`` / ``--listen`` / ``--mode`` / ``--multicast-scouting``, with the role's defaults."""
-    g = parser.add_argument_group("bus (Zenoh)")
     default = (
-        f"default: connect to {DEFAULT_HUB_ENDPOINT} as a client"
+        f"by default a client connecting to the hub at {DEFAULT_HUB_ENDPOINT}"
         if role == "worker"
-        else f"default: listen on {DEFAULT_HUB_ENDPOINT} as a router"
+        else f"by default a router listening on {DEFAULT_HUB_ENDPOINT} (this machine only)"
     )
+    g = parser.add_argument_group("bus (Zenoh)", f"How this process joins the studio's bus: {default}.")
     g.add_argument(
         "--connect",
         action="append",
         default=[],
         metavar="ENDPOINT",
-        help=f"endpoint to connect to, e.g. tcp/10.0.0.5:7447 (repeatable; {default})",
+        help="endpoint to connect to, e.g. tcp/10.0.0.5:7447 (repeatable)",
     )
     g.add_argument(
         "--listen",
@@ -183,14 +183,8 @@ def add_bus_arguments(parser: argparse.ArgumentParser, role: Literal["worker", "
         metavar="ENDPOINT",
         help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 to accept other machines (repeatable)",
     )
-    g.add_argument(
-        "--mode",
-        choices=MODES,
-        default=None,
-        help="Zenoh mode (default: "
-        + ("client, or peer with --listen" if role == "worker" else "router")
-        + ")",
-    )
+    mode_default = "client, or peer with --listen" if role == "worker" else "router"
+    g.add_argument("--mode", choices=MODES, default=None, help=f"Zenoh mode (default: {mode_default})")
     g.add_argument(
         "--multicast-scouting", action="store_true", help="discover peers by UDP multicast (off by default)"
     )

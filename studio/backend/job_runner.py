@@ -140,6 +140,7 @@ class JobContext:
         self.cancel_reason = ""
         self._started = time.monotonic()
         self._first_step: tuple[int, float] | None = None
+        self._activity_at = -1.0
 
     @property
     def cancelled(self) -> bool:
@@ -186,7 +187,8 @@ class JobContext:
                 eta_s=eta_s,
             ),
         )
-        if total:
+        if total and now - self._activity_at >= 0.5:  # the worker's status says how far it is, at ≤ 2 Hz
+            self._activity_at = now
             self._runner.presence.update(activity=f"{self.kind} job {self.job}: step {step}/{total}")
 
     def artifact(self, name: str, path: str | Path, step: int | None = None) -> None:

@@ -63,7 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="offer only the --handler kinds, not the studio's defaults for this worker kind",
     )
-    parser.add_argument("--max-sessions", type=int, default=4, help="most teleop sessions at once (sim)")
+    parser.add_argument(
+        "--max-sessions", type=int, default=4, help="most teleop sessions at once (sim; default 4)"
+    )
     parser.add_argument("--control-hz", type=float, default=60.0, help="teleop control rate (sim)")
     parser.add_argument(
         "--exit-with-parent",
