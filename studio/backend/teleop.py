@@ -142,6 +142,14 @@ class TeleopSession:
         except ValueError as e:
             raise SessionError("bad_request", str(e)) from None
         m = self.env.model
+        max_w, max_h = int(m.vis.global_.offwidth), int(m.vis.global_.offheight)
+        if request.image_width > max_w or request.image_height > max_h:
+            self.env.close()
+            raise SessionError(
+                "bad_request",
+                f"image size {request.image_height}x{request.image_width} exceeds the scene's render buffer "
+                f"{max_h}x{max_w}",
+            )
         self.cameras = tuple(m.camera(i).name for i in range(m.ncam))
         self.body_names = body_names(m)
         self._geometry: msg.SceneGeometry | None = None

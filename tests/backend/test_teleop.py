@@ -135,6 +135,8 @@ def test_bad_requests_get_clear_errors_and_the_session_survives(site):
             client.open("pick_place", "panda", "pick_place/nothing->nowhere", seed=0)
         with pytest.raises(bus.RemoteError, match="not_found"):
             client.start_recording()
+        with pytest.raises(bus.RemoteError, match="exceeds the scene's render buffer"):
+            client.open("pick_place", "panda", TASK, seed=0, image_size=(2000, 3000))
         client.open("pick_place", "panda", TASK, seed=0)
         with pytest.raises(bus.RemoteError, match="belongs to scene"):
             client.reset(task="push/red-forward")
