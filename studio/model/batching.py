@@ -64,9 +64,11 @@ _REQUIRED = ("expert_frames", "agent_frames", "path", "K", "T_world_cam", "task_
 
 
 def collate_pairs(
-    samples: list[dict[str, Any]], image_size: tuple[int, int] | None = None, n_expert: int | None = None,
+    samples: list[dict[str, Any]],
+    image_size: tuple[int, int] | None = None,
+    n_expert: int | None = None,
     n_agent: int | None = None,
-) -> Batch:  # fmt: skip
+) -> Batch:
     """Stack training-sample dicts; one expert video per distinct ``expert_index``."""
     for s in samples:
         missing = [k for k in _REQUIRED if k not in s]

@@ -42,9 +42,15 @@ def run(args: argparse.Namespace) -> int:
         run_cfg = RunConfig.from_dict(load_checkpoint(args.model)["config"])
         train_set, val_set = open_splits(args.data, run_cfg, args.scene)
         result = train_decoder(
-            args.model, train_set, val_set if len(val_set) else None, args.out, cfg, device=args.device,
-            show_progress=not args.no_progress, resume=not args.restart,
-        )  # fmt: skip
+            args.model,
+            train_set,
+            val_set if len(val_set) else None,
+            args.out,
+            cfg,
+            device=args.device,
+            show_progress=not args.no_progress,
+            resume=not args.restart,
+        )
     except (ValueError, FileNotFoundError) as exc:
         print(f"studio train-decoder: {exc}", file=sys.stderr)
         return 2

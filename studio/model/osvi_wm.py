@@ -78,9 +78,13 @@ class OSVIWM(nn.Module):
         self.state_shape: tuple[int, ...] = (self.pooled_dim,) if cfg.pool_before_wm else (c, h, w)
         self.spatial_pool = SpatialSoftmax()
         self.action_model = ActionModel(
-            self.state_shape, cfg.action_blocks, cfg.action_heads, cfg.action_attn_dim, cfg.action_mlp_dim,
+            self.state_shape,
+            cfg.action_blocks,
+            cfg.action_heads,
+            cfg.action_attn_dim,
+            cfg.action_mlp_dim,
             cfg.action_dropout,
-        )  # fmt: skip
+        )
         self.world_model = (
             WorldModel(
                 self.state_shape, cfg.wm_width, cfg.wm_blocks, cfg.wm_heads, cfg.wm_mlp_dim, cfg.wm_dropout

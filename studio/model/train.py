@@ -144,9 +144,15 @@ def compute_losses(
     if generator is not None:
         with torch.no_grad():
             aug = augment_batch(
-                batch.expert_frames, batch.agent_frames, batch.K, batch.expert_ids, batch.expert_tasks,
-                batch.agent_tasks, cfg, generator,
-            )  # fmt: skip
+                batch.expert_frames,
+                batch.agent_frames,
+                batch.K,
+                batch.expert_ids,
+                batch.expert_tasks,
+                batch.agent_tasks,
+                cfg,
+                generator,
+            )
         expert, agent, K = aug.expert_frames, aug.agent_frames, aug.K
     else:
         expert, agent, K = batch.expert_frames, batch.agent_frames, batch.K
@@ -242,8 +248,8 @@ def train(
     )
     per_epoch = plan.batches_per_epoch
     total = cfg.max_steps if cfg.max_steps > 0 else max(1, math.ceil(cfg.epochs * per_epoch))
-    decay = [p for n, p in model.named_parameters() if p.ndim >= 2]
-    no_decay = [p for n, p in model.named_parameters() if p.ndim < 2]
+    decay = [p for p in model.parameters() if p.ndim >= 2]
+    no_decay = [p for p in model.parameters() if p.ndim < 2]
     optimizer = torch.optim.AdamW(
         [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
         lr=cfg.lr_max,
@@ -275,11 +281,24 @@ def train(
         model.set_depth_prior(median_path_depth(train_set))
     metrics_path = out / "metrics.jsonl"
     if main:
-        write_json(out / "config.json", {"config": run.to_dict(), "dataset_fingerprint": fingerprint,
-                                          "tasks": list(train_set.tasks)})  # fmt: skip
+        summary = {
+            "config": run.to_dict(),
+            "dataset_fingerprint": fingerprint,
+            "tasks": list(train_set.tasks),
+        }
+        write_json(out / "config.json", summary)
         trim_metrics(metrics_path, start_step)
-        append_jsonl(metrics_path, {"event": "resume" if start_step else "start", "step": start_step,
-                               "total_steps": total, "world_size": world, "time": time.time()})  # fmt: skip
+        event = "resume" if start_step else "start"
+        append_jsonl(
+            metrics_path,
+            {
+                "event": event,
+                "step": start_step,
+                "total_steps": total,
+                "world_size": world,
+                "time": time.time(),
+            },
+        )
 
     core = model
     if world > 1:
@@ -316,9 +335,12 @@ def train(
             if hasattr(train_set, "set_epoch"):
                 train_set.set_epoch(epoch)
             loader = DataLoader(
-                train_set, batch_sampler=chunks, collate_fn=collate, num_workers=cfg.num_workers,
+                train_set,
+                batch_sampler=chunks,
+                collate_fn=collate,
+                num_workers=cfg.num_workers,
                 worker_init_fn=_seed_worker,
-            )  # fmt: skip
+            )
             for batch in loader:
                 yield step, batch
                 step += 1
@@ -356,8 +378,12 @@ def train(
             sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
             if done % cfg.log_every == 0 or done == total:
                 elapsed = time.perf_counter() - window_start
-                record = {"step": done, "epoch": round(done / per_epoch, 4), "lr": lr,
-                          "samples_per_s": window_pairs / max(elapsed, 1e-9)}  # fmt: skip
+                record = {
+                    "step": done,
+                    "epoch": round(done / per_epoch, 4),
+                    "lr": lr,
+                    "samples_per_s": window_pairs / max(elapsed, 1e-9),
+                }
                 record.update({k: v / window_steps for k, v in sums.items()})
                 if main:
                     append_jsonl(metrics_path, record)
@@ -372,8 +398,15 @@ def train(
                 if world > 1:
                     dist.barrier()
             rate = (done - run_start_step) / max(time.perf_counter() - run_start, 1e-9)
-            info = {"step": done, "total_steps": total, "epoch": done / per_epoch, "loss": parts["loss"], "lr": lr,
-                    "samples_per_s": rate * cfg.batch_size, "eta_s": (total - done) / max(rate, 1e-9)}  # fmt: skip
+            info = {
+                "step": done,
+                "total_steps": total,
+                "epoch": done / per_epoch,
+                "loss": parts["loss"],
+                "lr": lr,
+                "samples_per_s": rate * cfg.batch_size,
+                "eta_s": (total - done) / max(rate, 1e-9),
+            }
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(loss=f"{parts['loss']:.4f}", lr=f"{lr:.2e}")

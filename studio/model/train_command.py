@@ -79,9 +79,14 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         result = train(
-            cfg, train_set, val_set if len(val_set) else None, args.out, device=args.device,
-            show_progress=not args.no_progress, resume=not args.restart,
-        )  # fmt: skip
+            cfg,
+            train_set,
+            val_set if len(val_set) else None,
+            args.out,
+            device=args.device,
+            show_progress=not args.no_progress,
+            resume=not args.restart,
+        )
     except (CheckpointMismatch, ValueError) as exc:
         print(f"studio train: {exc}", file=sys.stderr)
         return 2

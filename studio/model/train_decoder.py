@@ -144,21 +144,35 @@ def train_decoder(
         optimizer.load_state_dict(ckpt["optimizer"])
         scheduler.load_state_dict(ckpt["scheduler"])
         start, best = int(ckpt["step"]), ckpt.get("best_val_pred_mse")
-    write_json(out / "decoder_config.json", {"config": config, "model_checkpoint": str(model_checkpoint),
-                                             "model_id": model_id, "dataset_fingerprint": fingerprint})  # fmt: skip
+    write_json(
+        out / "decoder_config.json",
+        {
+            "config": config,
+            "model_checkpoint": str(model_checkpoint),
+            "model_id": model_id,
+            "dataset_fingerprint": fingerprint,
+        },
+    )
     metrics = out / "metrics.jsonl"
     trim_metrics(metrics, start)
 
     def save(step: int, name: str) -> None:
         atomic_save(
             {
-                "format": DECODER_FORMAT, "config": config, "in_dim": model.pooled_dim,
-                "image_size": list(model.cfg.image_size), "model_id": model_id, "dataset_fingerprint": fingerprint,
-                "step": step, "best_val_pred_mse": best, "decoder": decoder.state_dict(),
-                "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+                "format": DECODER_FORMAT,
+                "config": config,
+                "in_dim": model.pooled_dim,
+                "image_size": list(model.cfg.image_size),
+                "model_id": model_id,
+                "dataset_fingerprint": fingerprint,
+                "step": step,
+                "best_val_pred_mse": best,
+                "decoder": decoder.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "scheduler": scheduler.state_dict(),
             },
             out / name,
-        )  # fmt: skip
+        )
 
     plan = BatchPlan(len(train_set), min(cfg.batch_size, len(train_set)), cfg.seed)
     per_epoch = plan.batches_per_epoch
@@ -171,9 +185,11 @@ def train_decoder(
             if hasattr(train_set, "set_epoch"):
                 train_set.set_epoch(epoch)
             loader = DataLoader(
-                train_set, batch_sampler=chunks, num_workers=cfg.num_workers,
+                train_set,
+                batch_sampler=chunks,
+                num_workers=cfg.num_workers,
                 collate_fn=functools.partial(collate_pairs, image_size=size),
-            )  # fmt: skip
+            )
             for b in loader:
                 yield step, b
                 step += 1
@@ -219,8 +235,15 @@ def train_decoder(
                 bar.set_postfix(mse=f"{value:.4f}")
             if progress is not None:
                 rate = (done - start) / max(time.perf_counter() - t_start, 1e-9)
-                progress({"step": done, "total_steps": total, "loss": value, "lr": lr,
-                          "eta_s": (total - done) / max(rate, 1e-9)})  # fmt: skip
+                progress(
+                    {
+                        "step": done,
+                        "total_steps": total,
+                        "loss": value,
+                        "lr": lr,
+                        "eta_s": (total - done) / max(rate, 1e-9),
+                    }
+                )
             step = done
             if stop:
                 status = "cancelled"

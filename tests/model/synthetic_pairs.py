@@ -99,11 +99,33 @@ def tiny_run_config(**train_overrides):
     from studio.model.config import ModelConfig, RunConfig, TrainConfig
 
     model = ModelConfig(
-        image_size=(48, 64), n_expert_frames=4, n_agent_frames=3, encoder_stages=2, state_channels=16,
-        action_blocks=1, action_heads=2, action_attn_dim=16, action_mlp_dim=32, wm_blocks=1, wm_heads=2,
-        wm_width=32, wm_mlp_dim=64, head_hidden=64, head_dropout=0.0,
-    )  # fmt: skip
-    train = dict(batch_size=8, max_steps=10, val_every=5, val_batches=2, checkpoint_every=5, log_every=1,
-                 num_workers=0, lr_max=1e-3, pairs_per_expert=2, sdtw_gamma=1e-2)  # fmt: skip
+        image_size=(48, 64),
+        n_expert_frames=4,
+        n_agent_frames=3,
+        encoder_stages=2,
+        state_channels=16,
+        action_blocks=1,
+        action_heads=2,
+        action_attn_dim=16,
+        action_mlp_dim=32,
+        wm_blocks=1,
+        wm_heads=2,
+        wm_width=32,
+        wm_mlp_dim=64,
+        head_hidden=64,
+        head_dropout=0.0,
+    )
+    train = dict(
+        batch_size=8,
+        max_steps=10,
+        val_every=5,
+        val_batches=2,
+        checkpoint_every=5,
+        log_every=1,
+        num_workers=0,
+        lr_max=1e-3,
+        pairs_per_expert=2,
+        sdtw_gamma=1e-2,
+    )
     train.update(train_overrides)
     return RunConfig(model, TrainConfig(**train))

@@ -56,9 +56,15 @@ def test_no_augmentation_is_the_identity():
     cfg = TrainConfig(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, **NO_COLOUR)
     frames = torch.randint(0, 256, (2, 3, 3, 24, 32), dtype=torch.uint8)
     out = augment_batch(
-        frames, frames, K.float()[None].repeat(2, 1, 1), torch.arange(2), torch.arange(2), torch.arange(2), cfg,
+        frames,
+        frames,
+        K.float()[None].repeat(2, 1, 1),
+        torch.arange(2),
+        torch.arange(2),
+        torch.arange(2),
+        cfg,
         torch.Generator().manual_seed(0),
-    )  # fmt: skip
+    )
     assert torch.allclose(out.agent_frames, frames.float() / 255, atol=1e-6)
     assert torch.allclose(out.K, K.float()[None].repeat(2, 1, 1))
 

@@ -14,8 +14,9 @@ torch.set_num_threads(1)
 def test_measure_reports_throughput_latency_and_size():
     parser = argparse.ArgumentParser()
     bench.add_arguments(parser)
-    args = parser.parse_args(["--config", "cpu", "--image-size", "96x128", "--reps", "1", "--warmup", "0",
-                              "--threads", "1"])  # fmt: skip
+    args = parser.parse_args(
+        ["--config", "cpu", "--image-size", "96x128", "--reps", "1", "--warmup", "0", "--threads", "1"]
+    )
     result = bench.measure(args)
     for key in ("train_samples_per_s", "train_samples_per_s_shared_expert", "plan_latency_ms", "replan_ms"):
         assert result[key] > 0

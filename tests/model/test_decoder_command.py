@@ -15,15 +15,33 @@ torch.set_num_threads(1)
 
 
 def test_trains_a_decoder_for_a_checkpoint(tmp_path, monkeypatch):
-    train(tiny_run_config(max_steps=1, batch_size=4, val_every=100), SyntheticPairs(), None, tmp_path / "run",
-          show_progress=False)  # fmt: skip
+    train(
+        tiny_run_config(max_steps=1, batch_size=4, val_every=100),
+        SyntheticPairs(),
+        None,
+        tmp_path / "run",
+        show_progress=False,
+    )
     monkeypatch.setattr(
         train_command, "open_splits", lambda root, run, scene: (SyntheticPairs(), SyntheticPairs(split="val"))
     )
     parser = argparse.ArgumentParser()
     decoder_command.add_arguments(parser)
-    args = parser.parse_args(["--model", str(tmp_path / "run" / "last.pt"), "--data", "store", "--out",
-                              str(tmp_path / "dec"), "--steps", "2", "--batch-size", "2", "--no-progress"])  # fmt: skip
+    args = parser.parse_args(
+        [
+            "--model",
+            str(tmp_path / "run" / "last.pt"),
+            "--data",
+            "store",
+            "--out",
+            str(tmp_path / "dec"),
+            "--steps",
+            "2",
+            "--batch-size",
+            "2",
+            "--no-progress",
+        ]
+    )
     assert decoder_command.run(args) == 0
     assert load_decoder(tmp_path / "dec" / "last.pt").image_size == (48, 64)
 

@@ -13,10 +13,21 @@ torch.set_num_threads(1)
 
 def tiny(**kw) -> ModelConfig:
     base = dict(
-        image_size=(48, 64), n_expert_frames=3, n_agent_frames=4, encoder_stages=2, state_channels=8,
-        action_blocks=1, action_heads=2, action_attn_dim=8, action_mlp_dim=16, wm_width=16, wm_heads=2,
-        wm_mlp_dim=32, head_hidden=32, head_dropout=0.0,
-    )  # fmt: skip
+        image_size=(48, 64),
+        n_expert_frames=3,
+        n_agent_frames=4,
+        encoder_stages=2,
+        state_channels=8,
+        action_blocks=1,
+        action_heads=2,
+        action_attn_dim=8,
+        action_mlp_dim=16,
+        wm_width=16,
+        wm_heads=2,
+        wm_mlp_dim=32,
+        head_hidden=32,
+        head_dropout=0.0,
+    )
     base.update(kw)
     return ModelConfig(**base)
 

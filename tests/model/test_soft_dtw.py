@@ -7,7 +7,7 @@ import torch
 
 from studio.model.soft_dtw import soft_dtw, soft_dtw_divergence, soft_dtw_from_cost
 
-torch.set_num_threads(2)
+torch.set_num_threads(1)
 
 
 def naive_soft_dtw(x: torch.Tensor, y: torch.Tensor, gamma: float) -> torch.Tensor:

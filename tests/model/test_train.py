@@ -21,8 +21,17 @@ from studio.model.train import CheckpointMismatch, learning_rate_factor, load_ch
 torch.set_num_threads(1)
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
-NO_AUG = dict(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, brightness=0.0, contrast=0.0, saturation=0.0,
-              hue=0.0, mixup=False)  # fmt: skip
+NO_AUG = dict(
+    crop=0.0,
+    translate=0.0,
+    scale=(1.0, 1.0),
+    hflip=0.0,
+    brightness=0.0,
+    contrast=0.0,
+    saturation=0.0,
+    hue=0.0,
+    mixup=False,
+)
 
 
 def records(run_dir: Path) -> list[dict]:
@@ -40,8 +49,9 @@ def test_one_cycle_schedule_goes_from_max_to_final():
 def test_tiny_training_run_decreases_the_loss_and_writes_its_run_directory(tmp_path):
     data = SyntheticPairs(n_tasks=2, episodes_per_task=2)
     run = tiny_run_config(max_steps=30, lr_max=3e-3, val_every=15, log_every=1, **NO_AUG)
-    result = train(run, data, SyntheticPairs(n_tasks=2, episodes_per_task=2, split="val"), tmp_path,
-                   show_progress=False)  # fmt: skip
+    result = train(
+        run, data, SyntheticPairs(n_tasks=2, episodes_per_task=2, split="val"), tmp_path, show_progress=False
+    )
     assert result.status == "finished" and result.step == 30
     recs = [r for r in records(tmp_path) if "loss_sdtw" in r]
     first = sum(r["loss_sdtw"] for r in recs[:5]) / 5
@@ -68,8 +78,9 @@ def test_tiny_training_run_decreases_the_loss_and_writes_its_run_directory(tmp_p
 )
 def test_each_ablation_switch_builds_and_trains_a_step(tmp_path, overrides):
     run = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(overrides)
-    before = train(run.with_overrides(["train.max_steps=1"]), SyntheticPairs(), None, tmp_path / "a",
-                   show_progress=False)  # fmt: skip
+    before = train(
+        run.with_overrides(["train.max_steps=1"]), SyntheticPairs(), None, tmp_path / "a", show_progress=False
+    )
     assert before.step == 1
     result = train(run, SyntheticPairs(), None, tmp_path / "b", show_progress=False)
     rec = [r for r in records(tmp_path / "b") if "loss" in r]
@@ -147,9 +158,14 @@ def test_resume_refuses_another_configuration_or_dataset(tmp_path):
 def test_cancellation_checkpoints_and_stops_and_progress_is_reported(tmp_path):
     seen = []
     result = train(
-        tiny_run_config(max_steps=10, batch_size=4, val_every=100), SyntheticPairs(), None, tmp_path,
-        progress=seen.append, cancel=lambda: len(seen) >= 2, show_progress=False,
-    )  # fmt: skip
+        tiny_run_config(max_steps=10, batch_size=4, val_every=100),
+        SyntheticPairs(),
+        None,
+        tmp_path,
+        progress=seen.append,
+        cancel=lambda: len(seen) >= 2,
+        show_progress=False,
+    )
     assert result.status == "cancelled" and result.step == 2
     assert [p["step"] for p in seen] == [1, 2] and all(p["total_steps"] == 10 for p in seen)
     assert load_checkpoint(tmp_path / "last.pt")["step"] == 2
@@ -188,8 +204,16 @@ def test_two_process_gloo_ddp_trains_in_lockstep(tmp_path):
         )
     )
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29517",
-           str(script)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nproc_per_node",
+        "2",
+        "--master_port",
+        "29517",
+        str(script),
+    ]
     proc = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     sums = [float(v) for v in (tmp_path / "sums.txt").read_text().split()]

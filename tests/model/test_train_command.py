@@ -13,9 +13,19 @@ from studio.model import train_command
 from studio.model.train import load_checkpoint
 
 torch.set_num_threads(1)
-TINY = ["model.image_size=[48, 64]", "model.n_expert_frames=4", "model.n_agent_frames=3", "model.encoder_stages=2",
-        "model.state_channels=16", "model.wm_width=32", "model.head_hidden=32", "train.batch_size=4",
-        "train.num_workers=0", "train.val_every=2", "train.val_batches=1"]  # fmt: skip
+TINY = [
+    "model.image_size=[48, 64]",
+    "model.n_expert_frames=4",
+    "model.n_agent_frames=3",
+    "model.encoder_stages=2",
+    "model.state_channels=16",
+    "model.wm_width=32",
+    "model.head_hidden=32",
+    "train.batch_size=4",
+    "train.num_workers=0",
+    "train.val_every=2",
+    "train.val_batches=1",
+]
 
 
 def _args(*argv: str) -> argparse.Namespace:
@@ -37,14 +47,36 @@ def test_trains_and_resumes_through_the_command(tmp_path, monkeypatch, capsys):
         return SyntheticPairs(), SyntheticPairs(split="val")
 
     monkeypatch.setattr(train_command, "open_splits", fake_open)
-    args = _args("--data", "store", "--out", str(tmp_path), "--steps", "2", "--seed", "3", "--no-progress",
-                 "--set", *TINY)  # fmt: skip
+    args = _args(
+        "--data",
+        "store",
+        "--out",
+        str(tmp_path),
+        "--steps",
+        "2",
+        "--seed",
+        "3",
+        "--no-progress",
+        "--set",
+        *TINY,
+    )
     assert train_command.run(args) == 0
     assert opened == [("store", (48, 64), 4)]
     ckpt = load_checkpoint(tmp_path / "last.pt")
     assert ckpt["step"] == 2 and ckpt["config"]["train"]["seed"] == 3
-    args = _args("--data", "store", "--out", str(tmp_path), "--steps", "3", "--seed", "3", "--no-progress",
-                 "--set", *TINY)  # fmt: skip
+    args = _args(
+        "--data",
+        "store",
+        "--out",
+        str(tmp_path),
+        "--steps",
+        "3",
+        "--seed",
+        "3",
+        "--no-progress",
+        "--set",
+        *TINY,
+    )
     assert train_command.run(args) == 2  # a longer run changes the schedule: refused, not silently mixed
     assert "max_steps" in capsys.readouterr().err
 
@@ -72,12 +104,27 @@ def test_trains_on_a_real_episode_store(tmp_path):
     store = EpisodeStore(tmp_path / "store")
     seed = 0
     for task in ("pick_place/cube->red", "pick_place/cube->green"):
-        for role, robot in (("expert", "sawyer"), ("agent", "panda"), ("expert", "sawyer"), ("agent", "panda"),
-                            ("expert", "sawyer"), ("agent", "panda")):  # fmt: skip
+        for role, robot in (
+            ("expert", "sawyer"),
+            ("agent", "panda"),
+            ("expert", "sawyer"),
+            ("agent", "panda"),
+            ("expert", "sawyer"),
+            ("agent", "panda"),
+        ):
             store.add_episode(make_recording(task=task, robot=robot, seed=seed), role=role, source="scripted")
             seed += 1
-    args = _args("--data", str(tmp_path / "store"), "--out", str(tmp_path / "run"), "--steps", "2",
-                 "--no-progress", "--set", *TINY)  # fmt: skip
+    args = _args(
+        "--data",
+        str(tmp_path / "store"),
+        "--out",
+        str(tmp_path / "run"),
+        "--steps",
+        "2",
+        "--no-progress",
+        "--set",
+        *TINY,
+    )
     assert train_command.run(args) == 0
     ckpt = load_checkpoint(tmp_path / "run" / "last.pt")
     assert ckpt["step"] == 2 and ckpt["tasks"][:2] == ["pick_place/cube->red", "pick_place/cube->green"]

@@ -30,10 +30,20 @@ def model_ckpt(tmp_path_factory):
 
 def test_decoder_learns_with_the_model_frozen(model_ckpt, tmp_path):
     before = {k: v.clone() for k, v in load_checkpoint(model_ckpt)["model"].items()}
-    cfg = DecoderConfig(base_channels=32, stages=3, batch_size=4, steps=25, lr=3e-3, val_every=25, val_batches=2,
-                        log_every=1, num_workers=0)  # fmt: skip
-    result = train_decoder(model_ckpt, SyntheticPairs(), SyntheticPairs(split="val"), tmp_path, cfg,
-                           show_progress=False)  # fmt: skip
+    cfg = DecoderConfig(
+        base_channels=32,
+        stages=3,
+        batch_size=4,
+        steps=25,
+        lr=3e-3,
+        val_every=25,
+        val_batches=2,
+        log_every=1,
+        num_workers=0,
+    )
+    result = train_decoder(
+        model_ckpt, SyntheticPairs(), SyntheticPairs(split="val"), tmp_path, cfg, show_progress=False
+    )
     assert result.status == "finished" and result.step == 25
     recs = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
     losses = [r["loss_mse"] for r in recs if "loss_mse" in r]
