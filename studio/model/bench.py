@@ -113,7 +113,7 @@ def measure(args: argparse.Namespace) -> dict:
         model, run, _batch(args.batch, shared_u, n, m, size, g), args.warmup, args.reps, device
     )
 
-    planner = Planner(model, device)
+    planner = Planner(model, device, args.precision)
     expert = np.random.default_rng(0).integers(0, 256, (n, *size, 3), dtype=np.uint8)
     K = np.array([[0.9 * size[1], 0, size[1] / 2], [0, 0.9 * size[1], size[0] / 2], [0, 0, 1]])
 

@@ -12,9 +12,12 @@ action model's (…, H, W, C) token view reads without a copy.
 
 from __future__ import annotations
 
+import copy
+
 import torch
 import torchvision
 from torch import nn
+from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 _IMAGENET_MEAN = (0.485, 0.456, 0.406)
 _IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -60,6 +63,29 @@ class Encoder(nn.Module):
         if self.reduce is not None:
             y = self.reduce(y)
         return y.reshape(*lead, *y.shape[1:])
+
+    @torch.no_grad()
+    def fused_for_inference(self) -> Encoder:
+        """A copy in eval mode with every BatchNorm folded into the convolution before it (same outputs up to
+        rounding, fewer passes over the feature maps); for planning only — it cannot be trained."""
+        fused = copy.deepcopy(self).eval()
+
+        def fold(parent: nn.Module, conv_name: str, bn_name: str) -> None:
+            conv, bn = getattr(parent, conv_name), getattr(parent, bn_name)
+            setattr(parent, conv_name, fuse_conv_bn_eval(conv, bn))
+            setattr(parent, bn_name, nn.Identity())
+
+        fold(fused.trunk, "0", "1")
+        for stage in list(fused.trunk)[4:]:
+            for block in stage:
+                fold(block, "conv1", "bn1")
+                fold(block, "conv2", "bn2")
+                if block.downsample is not None:
+                    fold(block.downsample, "0", "1")
+        if fused.channels_last:
+            fused.to(memory_format=torch.channels_last)
+        fused.requires_grad_(False)
+        return fused
 
     @torch.no_grad()
     def output_shape(self, image_size: tuple[int, int]) -> tuple[int, int, int]:

@@ -9,11 +9,15 @@ probability (closed when > 0.5) — and the predicted latent trajectory (maps an
 visualisation with the latent decoder.
 
 Re-planning with the same demonstration reuses the expert context (its encodings and the action model's cache):
-only the new agent frame is encoded. Runs in eval mode under ``torch.inference_mode``.
+only the new agent frame is encoded. Runs in eval mode under ``torch.inference_mode`` on a private copy of the
+model whose encoder has its BatchNorms folded into the convolutions; ``precision="bf16"`` (opt-in) runs the
+network under bfloat16 autocast, about twice as fast on CPUs with AMX/AVX-512-BF16 at ~1 % relative error in
+the encodings.
 """
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import time
 from dataclasses import dataclass, field
@@ -81,18 +85,24 @@ def _resize(frames: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 class Planner:
     """A trained OSVI-WM model ready to plan."""
 
-    def __init__(self, model: OSVIWM, device: str | torch.device = "cpu") -> None:
+    def __init__(self, model: OSVIWM, device: str | torch.device = "cpu", precision: str = "fp32") -> None:
+        if precision not in ("fp32", "bf16"):
+            raise ValueError(f"precision must be 'fp32' or 'bf16', got {precision!r}")
         self.device = torch.device(device)
-        self.model = model.to(self.device).eval()
+        self.precision = precision
+        self.model = copy.deepcopy(model).to(self.device).eval()
+        self.model.encoder = self.model.encoder.fused_for_inference()
         self.cfg = model.cfg
         self._context_key: str | None = None
         self._context: KVCache | None = None
 
     @classmethod
-    def load(cls, checkpoint: str | Path, device: str | torch.device = "cpu") -> Planner:
+    def load(
+        cls, checkpoint: str | Path, device: str | torch.device = "cpu", precision: str = "fp32"
+    ) -> Planner:
         from studio.model.train import load_checkpoint, model_from_checkpoint
 
-        return cls(model_from_checkpoint(load_checkpoint(checkpoint, "cpu")), device)
+        return cls(model_from_checkpoint(load_checkpoint(checkpoint, "cpu")), device, precision)
 
     def clear_cache(self) -> None:
         self._context_key, self._context = None, None
@@ -127,19 +137,20 @@ class Planner:
 
         model = self.model
         reused = key == self._context_key and self._context is not None
-        if reused:
-            agent_state = model.encode(agent)
-            context = self._context
-        else:
-            encoded = model.encode(torch.cat([expert, agent], 0))
-            agent_state = encoded[n:]
-            context = model.action_model.context(encoded[:n].unsqueeze(0))
-            self._context_key, self._context = key, context
-        t2 = time.perf_counter()
-        _, states = model.rollout_from_context(context, agent_state)
-        pooled = model.pool(states)
-        t3 = time.perf_counter()
-        raw = model.predict_waypoints(pooled)
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            if reused:
+                agent_state = model.encode(agent)
+                context = self._context
+            else:
+                encoded = model.encode(torch.cat([expert, agent], 0))
+                agent_state = encoded[n:]
+                context = model.action_model.context(encoded[:n].unsqueeze(0))
+                self._context_key, self._context = key, context
+            t2 = time.perf_counter()
+            _, states = model.rollout_from_context(context, agent_state)
+            pooled = model.pool(states)
+            t3 = time.perf_counter()
+            raw = model.predict_waypoints(pooled).float()
         decoded = model.decode_waypoints(
             waypoint_set(raw, self.cfg.max_waypoints), K_model[None].to(self.device)
         )

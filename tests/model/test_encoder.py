@@ -50,3 +50,20 @@ def test_channels_last_changes_layout_not_values():
 def test_bad_input_is_rejected():
     with pytest.raises(ValueError, match="3, H, W"):
         Encoder(1)(torch.zeros(2, 4, 32, 32))
+
+
+def test_folding_batchnorm_for_inference_keeps_the_outputs():
+    torch.manual_seed(0)
+    enc = Encoder(3, 16).eval()
+    for m in enc.modules():  # non-trivial statistics, as after training
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-0.5, 0.5)
+            m.running_var.uniform_(0.5, 2.0)
+            m.weight.data.uniform_(0.5, 1.5)
+            m.bias.data.uniform_(-0.2, 0.2)
+    fused = enc.fused_for_inference()
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fused.modules())
+    x = torch.rand(2, 3, 64, 80)
+    with torch.no_grad():
+        assert torch.allclose(enc(x), fused(x), atol=1e-4)
+    assert any(isinstance(m, torch.nn.BatchNorm2d) for m in enc.modules())  # the original is untouched

@@ -95,3 +95,15 @@ def test_load_from_a_training_checkpoint(tmp_path, sample):
     assert planner.plan(
         sample["expert_frames"], sample["agent_frames"][0], sample["K"], np.eye(4)
     ).waypoints_world.shape == (5, 4)
+
+
+def test_bfloat16_planning_stays_close_to_float32(sample):
+    torch.manual_seed(0)
+    model = OSVIWM(tiny_run_config().model)
+    fp32 = Planner(model).plan(sample["expert_frames"], sample["agent_frames"][0], sample["K"], np.eye(4))
+    bf16 = Planner(model, precision="bf16").plan(
+        sample["expert_frames"], sample["agent_frames"][0], sample["K"], np.eye(4)
+    )
+    assert np.abs(bf16.waypoints_cam - fp32.waypoints_cam).max() < 0.05
+    with pytest.raises(ValueError, match="precision"):
+        Planner(model, precision="fp8")
