@@ -36,7 +36,7 @@ from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.episode_transfer import EpisodeDestination, ShipError, _write_durably, recording_payload
 from studio.backend.scene_state import body_names, pose_frame, scene_geometry
-from studio.sim.env import SimEnv
+from studio.sim.env import SimEnv, make_env
 from studio.sim.recorder import Recorder
 from studio.sim.recording import Recording
 
@@ -137,7 +137,7 @@ class TeleopSession:
         self.config = config
         size = (request.image_height, request.image_width)
         try:
-            self.env = SimEnv(request.scene, request.robot, image_size=size, control_dt=config.control_dt)
+            self.env = self._make_env(request.scene, request.robot, size)
             self.env.reset(request.task, request.seed)
         except ValueError as e:
             raise SessionError("bad_request", str(e)) from None
@@ -150,9 +150,7 @@ class TeleopSession:
                 f"image size {request.image_height}x{request.image_width} exceeds the scene's render buffer "
                 f"{max_h}x{max_w}",
             )
-        self.cameras = tuple(m.camera(i).name for i in range(m.ncam))
-        self.body_names = body_names(m)
-        self._geometry: msg.SceneGeometry | None = None
+        self._describe_model()
 
         self._cond = threading.Condition()
         self._closed = False
@@ -193,6 +191,27 @@ class TeleopSession:
             t.start()
 
     # ------------------------------------------------------------------ descriptions
+    def _make_env(self, scene: str, robot: str, size: tuple[int, int]) -> SimEnv:
+        """The scene's simulator: a SimEnv at the session's control rate, or a Meta-World environment
+        (``scene="metaworld"``, whose control rate is Meta-World's own)."""
+        if scene == "metaworld":
+            return make_env(scene, robot, image_size=size)
+        return SimEnv(scene, robot, image_size=size, control_dt=self.config.control_dt)
+
+    def _describe_model(self) -> None:
+        """Cameras and bodies of the current model (a Meta-World reset to another task changes the model)."""
+        m = self.env.model
+        # "external" is the studio's observation camera in every scene (Meta-World maps it onto one of its own).
+        names = [m.camera(i).name for i in range(m.ncam)]
+        self.cameras = ("external", *(n for n in names if n and n != "external"))
+        self.body_names = body_names(m)
+        self._geometry: msg.SceneGeometry | None = None
+
+    def _scene_geometry(self) -> msg.SceneGeometry:
+        if self._geometry is None:
+            self._geometry = scene_geometry(self.env.model)
+        return self._geometry
+
     def info(self) -> msg.SessionInfo:
         env = self.env
         return msg.SessionInfo(
@@ -257,9 +276,7 @@ class TeleopSession:
                 message=f"streaming {request.camera} at {request.hz:g} Hz" if request.hz > 0 else "stopped"
             )
         if isinstance(request, msg.GetGeometry):
-            if self._geometry is None:
-                self._geometry = scene_geometry(self.env.model)
-            return self._geometry
+            return self.call(self._scene_geometry)
         raise SessionError("bad_request", f"{type(request).__name__} is not a teleop session request")
 
     def _check_camera(self, camera: str) -> None:
@@ -372,6 +389,7 @@ class TeleopSession:
             self.env.reset(task or self.env.task.name, self.env.seed if seed is None else seed)
         except ValueError as e:
             raise SessionError("bad_request", str(e)) from None
+        self._describe_model()
         with self._cond:
             self._cmd, self._cmd_new = None, False
         self._publish_pose(-1)
@@ -451,12 +469,7 @@ class TeleopSession:
                     job = self._render_jobs.popleft() if self._render_jobs else None
                     snapshot = self._snapshot
                 if render_env is None:
-                    render_env = SimEnv(
-                        self.env.scene,
-                        self.env.robot,
-                        image_size=self.env.image_size,
-                        control_dt=self.env.control_dt,
-                    )
+                    render_env = self._make_env(self.env.scene, self.env.robot, self.env.image_size)
                 if job is None:
                     next_stream = time.monotonic() + 1.0 / stream.hz
                     layout = self._render_snapshot(render_env, layout, snapshot)

@@ -203,3 +203,21 @@ def test_slow_consumer_never_stalls_the_simulation(site):
         assert 0 < len(consumed) < 10
     finally:
         slow.close()
+
+
+def test_metaworld_session_follows_the_task_model(site):
+    hub, _ = site
+    with TeleopClient(hub.session, "sim-remote") as client:
+        info = client.open(
+            "metaworld", "sawyer", "metaworld/button-press-topdown-v3", seed=0, image_size=(224, 224)
+        )
+        assert info.task == "metaworld/button-press-topdown-v3" and info.control_dt > 0
+        start = np.asarray(client.poses.wait_until(lambda f: True, 10.0).ee_pos)
+        last = drive(client, start + np.array([0.0, 0.0, -0.03]), gripper=0.0, ticks=20)
+        assert last.body_count == len(info.body_names) and last.ee_pos[2] < start[2] - 0.01
+        assert client.request_frame().width == 224
+        other = client.reset(task="metaworld/drawer-open-v3", seed=1)
+        assert other.task == "metaworld/drawer-open-v3"
+        frame = client.poses.wait_until(lambda f: f.body_count == len(other.body_names), 5.0)
+        assert frame is not None
+        assert client.geometry().body_names == other.body_names
