@@ -115,8 +115,7 @@ def _expert_choices(store, task: str) -> list[str]:
 
 
 def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None, keep: bool) -> RolloutSummary:
-    from studio.backend.rollout import run_rollout
-    from studio.data.catalog import RolloutRecord
+    from studio.backend.rollout import run_rollout, store_rollout
 
     store, env, planner = _W["store"], _W["env"], _W["planner"]
     choices = _expert_choices(store, job.task)
@@ -125,34 +124,9 @@ def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None,
     if hasattr(planner, "clear_cache"):
         planner.clear_cache()
     out = run_rollout(env, planner, expert_frames, job.task, job.env_seed, replans=replan)
-    rollout_id = f"r-{uuid.uuid4().hex[:12]}"
-    path = None
-    if keep:
-        folder = store.root / "rollouts" / rollout_id
-        tmp = store.root / "rollouts" / f".{rollout_id}.tmp"
-        tmp.mkdir(parents=True, exist_ok=True)
-        arrays = {f"plan{i}_waypoints_world": p.waypoints_world for i, p in enumerate(out.plans)}
-        for i, p in enumerate(out.plans):
-            if p.waypoints_cam is not None:
-                arrays[f"plan{i}_waypoints_cam"] = np.asarray(p.waypoints_cam)
-            if p.latent_states is not None:
-                arrays[f"plan{i}_latent_states"] = np.asarray(p.latent_states, dtype=np.float16)
-            if p.pooled_states is not None:
-                arrays[f"plan{i}_pooled_states"] = np.asarray(p.pooled_states, dtype=np.float32)
-        arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
-        arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
-        np.savez_compressed(tmp / "plans.npz", **arrays)
-        (tmp / "events.json").write_text(json.dumps(out.events, default=float))
-        os.replace(tmp, folder)
-        path = str(folder)
-    record = RolloutRecord(
-        id=rollout_id, task=job.task, success=out.success, checkpoint_id=checkpoint_id,
-        expert_episode_id=expert_id, robot=env.robot, seed=job.env_seed, failure_stage=out.failure_stage,
-        replans=out.replans, planning_time_s=out.planning_time_s, duration_s=out.duration_s,
-        num_steps=out.recording.num_steps, path=path, eval_id=eval_id,
-        extra={"stages": out.stages, "index": job.index},
-    )
-    store.add_rollout(record, out.recording if keep else None)
+    record = store_rollout(store, out, expert_episode_id=expert_id, checkpoint_id=checkpoint_id, eval_id=eval_id,
+                           keep=keep, extra={"index": job.index})
+    rollout_id = record.id
     return RolloutSummary(rollout_id, job.task, job.index, job.env_seed, expert_id, out.success,
                           out.stages["reached"], out.stages["grasped"], out.stages["placed"], out.failure_stage,
                           out.replans, out.planning_time_s, out.duration_s)

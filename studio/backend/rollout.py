@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -104,8 +105,14 @@ class OraclePlanner:
 def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, task: str, seed: int, *,
                 replans: int = 0, grasp_correction: bool | None = None, n_frames: int = 30,
                 on_event: Callable[[str, dict], None] | None = None,
+                on_tick: Callable[[], None] | None = None,
+                should_stop: Callable[[], bool] | None = None,
                 controller_config: ControllerConfig | None = None) -> RolloutOutcome:
-    """Run one rollout of ``task`` from ``seed`` on ``env`` imitating ``expert_frames`` (N, H, W, 3) uint8."""
+    """Run one rollout of ``task`` from ``seed`` on ``env`` imitating ``expert_frames`` (N, H, W, 3) uint8.
+
+    ``on_tick`` is called after every control tick (live display); ``should_stop`` is polled every tick
+    and ends the rollout early (cancellation) — the outcome then says ``failure_stage="cancelled"``.
+    """
     started = time.perf_counter()
     env.reset(task, seed)
     events: list[tuple[str, dict]] = []
@@ -117,12 +124,20 @@ def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, ta
 
     recorder = Recorder(env)
     recorder.tick()
+
+    def tick() -> None:
+        recorder.tick()
+        if on_tick is not None:
+            on_tick()
+        if should_stop is not None and should_stop():
+            controller.cancelled = True
+
     cfg = controller_config or ControllerConfig()
     if grasp_correction is not None:
         cfg.grasp_correction = grasp_correction
     elif env.scene != "pick_place":
         cfg.grasp_correction = False  # grasp correction centres over objects: only meaningful for grasps
-    controller = WaypointController(env, cfg, on_tick=recorder.tick, on_event=event)
+    controller = WaypointController(env, cfg, on_tick=tick, on_event=event)
     plans: list[PlanRecord] = []
     for attempt in range(replans + 1):
         if attempt:
@@ -140,12 +155,147 @@ def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, ta
             pooled_states=getattr(result, "pooled_states", None)))
         event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
         controller.execute(wps)
-        if env.success():
+        if env.success() or controller.cancelled:
             break
     stages = {k: bool(v) for k, v in env.stages().items()}
-    outcome_stage = failure_stage(stages)
+    outcome_stage = "cancelled" if controller.cancelled and not stages["placed"] else failure_stage(stages)
     event("outcome", {"success": stages["placed"], "failure_stage": outcome_stage})
     recording = recorder.finish(n_frames=n_frames, success=stages["placed"])
     return RolloutOutcome(task=task, seed=int(seed), robot=env.robot, success=stages["placed"], stages=stages,
                           failure_stage=outcome_stage, plans=plans, recording=recording,
                           duration_s=time.perf_counter() - started, events=events)
+
+
+def store_rollout(store, out: RolloutOutcome, *, expert_episode_id: str | None, checkpoint_id: str | None,
+                  eval_id: str | None = None, keep: bool = True, extra: dict | None = None):
+    """Write a rollout's plans and events into ``<root>/rollouts/<id>/`` (atomically) and index it.
+
+    The recording becomes an agent episode (source ``rollout``) in the same catalog transaction as the
+    rollout row. Returns the stored :class:`studio.data.catalog.RolloutRecord`.
+    """
+    import json
+    import os
+    import uuid
+
+    from studio.data.catalog import RolloutRecord
+
+    rollout_id = f"r-{uuid.uuid4().hex[:12]}"
+    path = None
+    if keep:
+        folder = store.root / "rollouts" / rollout_id
+        tmp = store.root / "rollouts" / f".{rollout_id}.tmp"
+        tmp.mkdir(parents=True, exist_ok=True)
+        arrays = {}
+        for i, p in enumerate(out.plans):
+            arrays[f"plan{i}_waypoints_world"] = p.waypoints_world
+            if p.waypoints_cam is not None:
+                arrays[f"plan{i}_waypoints_cam"] = np.asarray(p.waypoints_cam)
+            if p.latent_states is not None:
+                arrays[f"plan{i}_latent_states"] = np.asarray(p.latent_states, dtype=np.float16)
+            if p.pooled_states is not None:
+                arrays[f"plan{i}_pooled_states"] = np.asarray(p.pooled_states, dtype=np.float32)
+        arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
+        arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
+        np.savez_compressed(tmp / "plans.npz", **arrays)
+        (tmp / "events.json").write_text(json.dumps(out.events, default=float))
+        os.replace(tmp, folder)
+        path = str(folder)
+    record = RolloutRecord(
+        id=rollout_id, task=out.task, success=out.success, checkpoint_id=checkpoint_id,
+        expert_episode_id=expert_episode_id, robot=out.robot, seed=out.seed, failure_stage=out.failure_stage,
+        replans=out.replans, planning_time_s=out.planning_time_s, duration_s=out.duration_s,
+        num_steps=out.recording.num_steps, path=path, eval_id=eval_id,
+        extra={"stages": out.stages, **(extra or {})},
+    )
+    return store.add_rollout(record, out.recording if keep else None)
+
+
+# ---------------------------------------------------------------------------------------------- job handler
+_JOB_CACHE: dict = {}
+
+
+def _cached(key, make):
+    if key not in _JOB_CACHE:
+        _JOB_CACHE[key] = make()
+    return _JOB_CACHE[key]
+
+
+def load_planner(checkpoint: str, env: SimEnv):
+    """``oracle`` or a checkpoint path (models are cached per worker process)."""
+    if checkpoint == "oracle":
+        return OraclePlanner(env)
+
+    def make():
+        from studio.model.planner import Planner
+
+        return Planner.load(checkpoint)
+
+    return _cached(("planner", checkpoint), make)
+
+
+def run_rollout_job(ctx) -> dict:
+    """The ``rollout`` job of a sim worker.
+
+    Spec: ``checkpoint`` (path or ``"oracle"``), ``expert_episode_id``, ``task``, ``seed``, ``replans``
+    (default 0), ``robot`` (default ``"panda"``). Streams progress (planning, waypoint i of 5, grasp
+    correction, re-planning, outcome) and body poses at ≤ 30 Hz, stores the rollout and returns its summary.
+    """
+    import time as _time
+
+    from studio.backend.scene_state import pose_frame
+    from studio.data.store import EpisodeStore
+    from studio.sim.tasks import get_task
+
+    spec = dict(ctx.spec)
+    missing = [k for k in ("checkpoint", "expert_episode_id", "task", "seed") if k not in spec]
+    if missing:
+        raise ValueError(f"rollout job spec lacks {missing}")
+    task = get_task(str(spec["task"]))
+    robot = str(spec.get("robot", "panda"))
+    replans = int(spec.get("replans", 0))
+    if ctx.data_dir is None:
+        raise ValueError("rollout jobs need a worker started with --data-dir (the store with the demonstration)")
+    store = _cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
+    env = _cached(("env", task.scene, robot), lambda: SimEnv(task.scene, robot))
+    planner = load_planner(str(spec["checkpoint"]), env)
+    if hasattr(planner, "clear_cache"):
+        planner.clear_cache()
+    expert_frames = store.load_frames(str(spec["expert_episode_id"]))
+    total_ticks = [0]
+    last_pose = [0.0]
+    seq = [0]
+
+    def on_event(kind: str, info: dict) -> None:
+        if kind == "waypoint":
+            msg = f"waypoint {info['index'] + 1} of {info['total']}"
+        elif kind == "grasp_correction":
+            msg = f"grasp correction {info['iteration']}/3" + ("" if info.get("found") else " (nothing seen)")
+        elif kind == "replanning":
+            msg = f"re-planning ({info['attempt']} of {info['of']})"
+        elif kind == "planning":
+            msg = "planning"
+        elif kind == "outcome":
+            msg = "success" if info["success"] else f"failed at {info['failure_stage']}"
+        else:
+            return
+        ctx.progress(total_ticks[0], message=msg)
+
+    def on_tick() -> None:
+        total_ticks[0] += 1
+        now = _time.monotonic()
+        if now - last_pose[0] >= 1 / 30:
+            last_pose[0] = now
+            seq[0] += 1
+            ctx.poses(pose_frame(env.data, seq=seq[0], step=env.steps, ack_seq=0, ee_pos=env.ee_pos,
+                                 gripper=env.gripper_cmd))
+
+    out = run_rollout(env, planner, expert_frames, task.name, int(spec["seed"]), replans=replans,
+                      on_event=on_event, on_tick=on_tick, should_stop=lambda: ctx.cancelled)
+    ctx.raise_if_cancelled()
+    checkpoint = str(spec["checkpoint"])
+    record = store_rollout(store, out, expert_episode_id=str(spec["expert_episode_id"]),
+                           checkpoint_id=None if checkpoint == "oracle" else Path(checkpoint).stem,
+                           extra={"job": ctx.job})
+    return {"rollout_id": record.id, "success": out.success, "failure_stage": out.failure_stage,
+            "replans": out.replans, "planning_time_s": out.planning_time_s, "episode_id": record.episode_id,
+            "stages": out.stages}
