@@ -133,7 +133,13 @@ class StartRecording(Message):
 
 
 class StopRecording(Message):
-    """Stop recording and store the episode; the outcome arrives later as :class:`EpisodeSaved`."""
+    """Stop recording and store the episode; the outcome arrives later as :class:`EpisodeSaved`.
+
+    ``success`` is the user's verdict (the UI pre-fills it with the task's predicate); None stores the
+    predicate's value at the moment recording stops.
+    """
+
+    success: bool | None = None
 
 
 class DiscardRecording(Message):

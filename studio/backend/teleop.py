@@ -258,7 +258,7 @@ class TeleopSession:
         if isinstance(request, msg.StartRecording):
             return self.call(lambda: self._start_recording(request))
         if isinstance(request, msg.StopRecording):
-            return self.call(self._stop_recording)
+            return self.call(lambda: self._stop_recording(request.success))
         if isinstance(request, msg.DiscardRecording):
             return self.call(self._discard_recording)
         if isinstance(request, msg.RequestFrame):
@@ -411,7 +411,7 @@ class TeleopSession:
         self._publish_status(state)
         return state
 
-    def _stop_recording(self) -> msg.SessionState:
+    def _stop_recording(self, success: bool | None = None) -> msg.SessionState:
         rec = self._recorder
         if rec is None:
             raise SessionError("conflict", "not recording")
@@ -427,7 +427,13 @@ class TeleopSession:
             )
         )
         job = _FinishJob(
-            rec.rows, rec.states, env.task.name, int(env.seed), bool(env.success()), self._role, n_frames
+            rec.rows,
+            rec.states,
+            env.task.name,
+            int(env.seed),
+            bool(env.success() if success is None else success),
+            self._role,
+            n_frames,
         )
         self._recorder = None
         with self._cond:

@@ -148,16 +148,18 @@ class TeleopClient:
         return self._request(msg.DiscardRecording(), msg.SessionState)
 
     def stop_recording(
-        self, wait: bool = True, timeout: float = 120.0
+        self, wait: bool = True, timeout: float = 120.0, success: bool | None = None
     ) -> msg.EpisodeSaved | msg.EpisodeNotSaved | msg.SessionState:
         """Stop and store; with ``wait`` returns the EpisodeSaved / EpisodeNotSaved outcome.
+
+        ``success`` marks the episode (None: the task's success predicate when recording stops).
 
         Raises :class:`~studio.backend.bus.RemoteError` if the worker refuses (e.g. too short), in which
         case the recording goes on.
         """
         with self._events_cond:
             seen = len(self.episodes)
-        state = self._request(msg.StopRecording(), msg.SessionState)
+        state = self._request(msg.StopRecording(success=success), msg.SessionState)
         if not wait:
             return state
         deadline = time.monotonic() + timeout
