@@ -5,9 +5,10 @@ action (dx, dy, dz, grab effort in [-1, 1]). We apply it with :meth:`MetaWorldEn
 does to the simulation exactly what Meta-World's ``step`` does (mocap moved by action × 1 cm per axis,
 finger controls ± effort) without its 500-step episode bookkeeping, so the policies succeed as often as
 in Meta-World itself. The recorded gripper command is the effort on our 0 (open) … 1 (closed) scale,
-``(effort + 1) / 2``: grasping policies command 0.8–1.0, pressing and pushing ones hold 0.5 (effort 0)
-or 0 (effort −1). Making the effort binary instead breaks several policies (assembly, basketball,
-pick-out-of-hole, peg-unplug-side fail almost always; measured in ``docs/metaworld.md``).
+``(effort + 1) / 2``: policies that close the fingers command 0.8–1.0, pressing and pushing ones hold
+0.5 (effort 0) or 0 (effort −1); a binary label is ``gripper_cmd > 0.5``. Making the effort binary
+instead breaks several policies (assembly, basketball, pick-out-of-hole, peg-unplug-side fail almost
+always; measured in ``docs/metaworld.md``).
 
 An episode stops :data:`AFTER_SUCCESS` ticks after the env's success signal first comes on (the
 reference data kept 5) and fails after :data:`MAX_TICKS` (Meta-World's horizon). Failed episodes are
