@@ -59,6 +59,20 @@ JOB_KINDS: dict[str, JobKind] = {
         requeue_on_worker_loss=False,
         description="imitate one expert episode; spec: checkpoint, expert episode, task, seed, replans",
     ),
+    "plan": JobKind(
+        name="plan",
+        worker_kind="sim",
+        handler="studio.backend.plan_job:run_plan_job",
+        requeue_on_worker_loss=False,
+        description="plan (not execute) one imitation; spec as rollout; writes <data>/plans/<job>.npz",
+    ),
+    "expert": JobKind(
+        name="expert",
+        worker_kind="sim",
+        handler="studio.backend.expert_job:run_expert_job",
+        requeue_on_worker_loss=False,
+        description="record and store one scripted expert demonstration; spec: task, seed, robot",
+    ),
 }
 
 Handler = Callable[["JobContext"], "dict[str, Any] | None"]

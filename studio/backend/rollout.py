@@ -237,7 +237,9 @@ def run_rollout_job(ctx) -> dict:
     """The ``rollout`` job of a sim worker.
 
     Spec: ``checkpoint`` (path or ``"oracle"``), ``expert_episode_id``, ``task``, ``seed``, ``replans``
-    (default 0), ``robot`` (default ``"panda"``). Streams progress (planning, waypoint i of 5, grasp
+    (default 0), ``robot`` (default ``"panda"``), ``checkpoint_id`` (the name stored with the rollout;
+    default the checkpoint file's stem), ``speed`` (0, the default: as fast as possible; otherwise
+    simulated seconds per wall-clock second, for live viewing). Streams progress (planning, waypoint i of 5, grasp
     correction, re-planning, outcome) and body poses at ≤ 30 Hz, stores the rollout and returns its summary.
     """
     import time as _time
@@ -274,15 +276,31 @@ def run_rollout_job(ctx) -> dict:
             msg = f"re-planning ({info['attempt']} of {info['of']})"
         elif kind == "planning":
             msg = "planning"
+        elif kind == "planned":
+            # The plan's waypoints ride along as metrics (wp<i>_x/y/z/g) so viewers can draw every re-plan live.
+            wps = np.asarray(info["waypoints"], dtype=float).reshape(-1, 4)
+            metrics = {f"wp{i}_{c}": float(v) for i, row in enumerate(wps) for c, v in zip("xyzg", row)}
+            ctx.progress(total_ticks[0], message=f"planned ({info['attempt'] + 1})", **metrics)
+            return
         elif kind == "outcome":
             msg = "success" if info["success"] else f"failed at {info['failure_stage']}"
         else:
             return
         ctx.progress(total_ticks[0], message=msg)
 
+    speed = float(spec.get("speed", 0.0))
+    wall_start: list[float] = []
+
     def on_tick() -> None:
         total_ticks[0] += 1
         now = _time.monotonic()
+        if speed > 0:  # paced for watching: simulated time runs at `speed` x wall time
+            if not wall_start:
+                wall_start.append(now - env.data.time / speed)
+            ahead = wall_start[0] + env.data.time / speed - now
+            if ahead > 0:
+                ctx.wait_cancelled(ahead)
+                now = _time.monotonic()
         if now - last_pose[0] >= 1 / 30:
             last_pose[0] = now
             seq[0] += 1
@@ -293,9 +311,10 @@ def run_rollout_job(ctx) -> dict:
                       on_event=on_event, on_tick=on_tick, should_stop=lambda: ctx.cancelled)
     ctx.raise_if_cancelled()
     checkpoint = str(spec["checkpoint"])
+    checkpoint_id = spec.get("checkpoint_id") or (None if checkpoint == "oracle" else Path(checkpoint).stem)
     record = store_rollout(store, out, expert_episode_id=str(spec["expert_episode_id"]),
-                           checkpoint_id=None if checkpoint == "oracle" else Path(checkpoint).stem,
-                           extra={"job": ctx.job})
+                           checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
+                           extra={"job": ctx.job, "checkpoint": checkpoint})
     return {"rollout_id": record.id, "success": out.success, "failure_stage": out.failure_stage,
             "replans": out.replans, "planning_time_s": out.planning_time_s, "episode_id": record.episode_id,
             "stages": out.stages}

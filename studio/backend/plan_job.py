@@ -1,0 +1,146 @@
+"""The ``plan`` job of a sim worker: one plan for (task, seed) from an expert demonstration, without executing it.
+
+The UI's *Plan* button runs it: the worker resets the scene exactly as a rollout of the same (task, seed)
+would, renders the agent's first frame, asks the planner (a checkpoint, or ``"oracle"``) for the 5
+attributed waypoints and, when the checkpoint has a latent decoder, decodes the predicted latent
+trajectory into images. Because planning is deterministic, the first plan of a ``rollout`` job with the
+same spec is this plan.
+
+The result is written to ``<data-dir>/plans/<job>.npz`` (arrays do not belong in the job journal):
+
+* ``waypoints_world``, ``waypoints_cam``: (5, 4) xyz + gripper probability;
+* ``agent_frame``: (H, W, 3) uint8, the observation planned from;
+* ``expert_indices``: indices of the expert frames the model saw (evenly spaced, first and last kept);
+* ``latent_images``: (S, h, w, 3) uint8 decoded latent states (only with a decoder);
+* ``K``, ``T_world_cam``: the external camera.
+
+A checkpoint's decoder is found by convention (:func:`find_decoder`): ``decoder/best.pt``,
+``decoder/last.pt`` or ``decoder.pt`` next to the checkpoint, or ``<stem>.decoder.pt``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+PLANS_DIR = "plans"
+
+_DECODERS: dict[str, Any] = {}
+
+
+def find_decoder(checkpoint: str | os.PathLike) -> Path | None:
+    """The latent decoder belonging to ``checkpoint`` (see the module docstring), or None."""
+    ck = Path(checkpoint)
+    for cand in (
+        ck.parent / "decoder" / "best.pt",
+        ck.parent / "decoder" / "last.pt",
+        ck.parent / "decoder.pt",
+        ck.with_name(f"{ck.stem}.decoder.pt"),
+    ):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def decode_latents(checkpoint: str | os.PathLike, pooled_states: np.ndarray) -> np.ndarray | None:
+    """(S, D) pooled latent states → (S, h, w, 3) uint8 images with the checkpoint's decoder (None: none)."""
+    path = find_decoder(checkpoint)
+    if path is None:
+        return None
+    key = f"{path}:{path.stat().st_mtime_ns}"
+    if key not in _DECODERS:
+        from studio.model.train_decoder import load_decoder
+
+        _DECODERS[key] = load_decoder(path)
+    decoder = _DECODERS[key]
+    pooled = np.asarray(pooled_states, dtype=np.float32)
+    if pooled.ndim != 2 or pooled.shape[1] != decoder.in_dim:
+        raise ValueError(
+            f"decoder {path} reads ({decoder.in_dim},) pooled states, got an array of shape {pooled.shape}"
+        )
+    return decoder.render(pooled)
+
+
+def expert_indices(n_frames: int, n: int = 10) -> np.ndarray:
+    """The frames of an ``n_frames`` video the planner looks at: ``n`` evenly spaced, first and last kept."""
+    if n_frames < 1:
+        raise ValueError("the expert video has no frames")
+    return np.round(np.linspace(0, n_frames - 1, n)).astype(np.int64)
+
+
+def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def run_plan_job(ctx) -> dict[str, Any]:
+    """Spec: ``checkpoint`` (path or ``"oracle"``), ``expert_episode_id``, ``task``, ``seed``, ``robot``
+    (default ``"panda"``). Returns the plan file (relative to the data dir) and a summary."""
+    import time
+
+    from studio.backend.rollout import _cached, load_planner
+    from studio.data.store import EpisodeStore
+    from studio.sim.env import make_env
+    from studio.sim.tasks import get_task
+
+    spec = dict(ctx.spec)
+    missing = [k for k in ("checkpoint", "expert_episode_id", "task", "seed") if k not in spec]
+    if missing:
+        raise ValueError(f"plan job spec lacks {missing}")
+    if ctx.data_dir is None:
+        raise ValueError("plan jobs need a worker started with --data-dir (the store with the demonstration)")
+    task = get_task(str(spec["task"]))
+    robot = str(spec.get("robot", "panda"))
+    checkpoint = str(spec["checkpoint"])
+    if checkpoint != "oracle" and not Path(checkpoint).is_file():
+        raise ValueError(f"checkpoint {checkpoint} does not exist on worker {ctx.worker}")
+    store = _cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
+    ctx.progress(0, 3, message="resetting the scene")
+    env = _cached(("env", task.scene, robot), lambda: make_env(task.scene, robot))
+    env.reset(task.name, int(spec["seed"]))
+    frame = env.render("external")
+    cam = env.camera_model("external")
+    expert = store.load_frames(str(spec["expert_episode_id"]))
+    ctx.progress(1, 3, message="planning")
+    planner = load_planner(checkpoint, env)
+    if hasattr(planner, "clear_cache"):
+        planner.clear_cache()
+    t0 = time.perf_counter()
+    plan = planner.plan(expert, frame, cam.K, cam.T_world_cam)
+    seconds = time.perf_counter() - t0
+    n_seen = int(getattr(getattr(planner, "cfg", None), "n_expert_frames", 10))
+    arrays = {
+        "waypoints_world": np.asarray(plan.waypoints_world, dtype=np.float64),
+        "waypoints_cam": np.asarray(plan.waypoints_cam, dtype=np.float64),
+        "agent_frame": frame,
+        "expert_indices": expert_indices(len(expert), n_seen),
+        "K": np.asarray(cam.K, dtype=np.float64),
+        "T_world_cam": np.asarray(cam.T_world_cam, dtype=np.float64),
+    }
+    decoded = 0
+    pooled = getattr(plan, "pooled_states", None)
+    if checkpoint != "oracle" and pooled is not None:
+        ctx.progress(2, 3, message="decoding the latent trajectory")
+        images = decode_latents(checkpoint, pooled)
+        if images is not None:
+            arrays["latent_images"] = images
+            decoded = len(images)
+    ctx.raise_if_cancelled()
+    rel = Path(PLANS_DIR) / f"{ctx.job}.npz"
+    _write_npz(Path(ctx.data_dir) / rel, arrays)
+    ctx.progress(3, 3, message="planned")
+    return {
+        "path": str(rel),
+        "planning_time_s": seconds,
+        "latent_images": decoded,
+        "decoder": None if checkpoint == "oracle" else (str(find_decoder(checkpoint) or "") or None),
+        "gripper_closed": [bool(g > 0.5) for g in arrays["waypoints_world"][:, 3]],
+    }

@@ -1,0 +1,103 @@
+"""The `expert` and `plan` jobs on a real sim worker: a scripted demonstration stored, then planned from."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from studio.backend.jobs import JobClient
+from studio.backend.plan_job import expert_indices, find_decoder
+from studio.data.store import EpisodeStore
+
+from .conftest import wait_worker
+
+pytestmark = pytest.mark.timeout(300)
+TASK = "pick_place/bar->blue"
+
+
+def test_expert_indices_keep_first_and_last():
+    assert expert_indices(31, 10).tolist() == [0, 3, 7, 10, 13, 17, 20, 23, 27, 30]
+    assert expert_indices(1, 3).tolist() == [0, 0, 0]
+    with pytest.raises(ValueError, match="no frames"):
+        expert_indices(0)
+
+
+def test_find_decoder_by_convention(tmp_path):
+    ck = tmp_path / "run" / "best.pt"
+    ck.parent.mkdir()
+    ck.write_bytes(b"x")
+    assert find_decoder(ck) is None
+    (tmp_path / "run" / "best.decoder.pt").write_bytes(b"x")
+    assert find_decoder(ck) == tmp_path / "run" / "best.decoder.pt"
+    (tmp_path / "run" / "decoder").mkdir()
+    (tmp_path / "run" / "decoder" / "best.pt").write_bytes(b"x")
+    assert find_decoder(ck) == tmp_path / "run" / "decoder" / "best.pt"
+
+
+def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
+    root = tmp_path / "data"
+    workers.start("sim", "sim-p", "--data-dir", str(root), handlers=(), only_handlers=False)
+    wait_worker(hub.directory, "sim-p")
+    status = hub.directory.get("sim", "sim-p").status
+    assert {"plan", "expert"} <= set(status.job_kinds), status.unavailable
+    client = JobClient(hub.session)
+    job = client.submit("expert", {"task": TASK, "seed": 0})
+    with client.watch(job.job) as w:
+        final = w.wait(timeout=120)
+        assert final.state == "succeeded", final.reason
+        w.wait(lambda w: w.result is not None, 10)
+    episode = w.result.result["episode_id"]
+    with EpisodeStore(root) as store:
+        meta = store.get(episode)
+        assert meta.role == "expert" and meta.source == "scripted" and meta.task == TASK and meta.success
+
+    job = client.submit(
+        "plan", {"checkpoint": "oracle", "expert_episode_id": episode, "task": TASK, "seed": 3}
+    )
+    with client.watch(job.job) as w:
+        final = w.wait(timeout=120)
+        assert final.state == "succeeded", final.reason
+        w.wait(lambda w: w.result is not None, 10)
+    result = w.result.result
+    plan = np.load(root / result["path"])
+    assert plan["waypoints_world"].shape == (5, 4) and plan["agent_frame"].shape == (240, 320, 3)
+    assert plan["expert_indices"][0] == 0 and plan["expert_indices"][-1] == meta.num_frames - 1
+    assert "latent_images" not in plan and result["latent_images"] == 0
+    assert result["gripper_closed"] == [bool(g > 0.5) for g in plan["waypoints_world"][:, 3]]
+
+    bad = client.submit("plan", {"checkpoint": str(tmp_path / "missing.pt"), "expert_episode_id": episode,
+                                 "task": TASK, "seed": 3})  # fmt: skip
+    with client.watch(bad.job) as w:
+        final = w.wait(timeout=60)
+    assert final.state == "failed" and "does not exist" in final.reason
+
+    # The rollout of the same spec starts with that very plan, paced at real time for viewers, and
+    # announces every plan's waypoints in its progress stream.
+    import time
+
+    from studio.backend import keys
+
+    planned: list = []
+    poses: list = []
+    job = client.submit("rollout", {"checkpoint": "oracle", "expert_episode_id": episode, "task": TASK,
+                                    "seed": 3, "speed": 1.0, "checkpoint_id": "oracle-ceiling"})  # fmt: skip
+    sub = hub.session.declare_subscriber(keys.job_key(job.job, "poses"), lambda s: poses.append(s))
+    t0 = time.monotonic()
+    try:
+        with client.watch(
+            job.job, on_progress=lambda p: planned.append(p) if "wp0_x" in p.metrics else None
+        ) as w:
+            final = w.wait(timeout=120)
+            assert final.state == "succeeded", final.reason
+            w.wait(lambda w: w.result is not None, 10)
+    finally:
+        sub.undeclare()
+    wall = time.monotonic() - t0
+    assert planned and planned[0].message == "planned (1)"
+    first = np.array([[planned[0].metrics[f"wp{i}_{c}"] for c in "xyzg"] for i in range(5)])
+    np.testing.assert_allclose(first, plan["waypoints_world"], atol=1e-9)
+    with EpisodeStore(root) as store:
+        (row,) = store.catalog.rollouts(task=TASK)
+        sim_seconds = row.num_steps * store.get(row.episode_id).control_dt
+    assert wall >= 0.9 * sim_seconds and len(poses) >= 20 * sim_seconds
+    assert row.checkpoint_id is None and row.extra["checkpoint"] == "oracle"
