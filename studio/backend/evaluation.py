@@ -88,10 +88,10 @@ _W: dict = {}
 def _init_worker(checkpoint: str, data_dir: str, scene: str, robot: str, threads: int) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     from studio.data.store import EpisodeStore
-    from studio.sim.env import SimEnv
+    from studio.sim.env import make_env
 
     _W["store"] = EpisodeStore(data_dir)
-    _W["env"] = SimEnv(scene, robot)
+    _W["env"] = make_env(scene, robot)
     if checkpoint == "oracle":
         from studio.backend.rollout import OraclePlanner
 
@@ -160,8 +160,13 @@ def summarise(rows: list[RolloutSummary]) -> dict:
     }
 
 
+def default_robot(scene: str) -> str:
+    """The agent of a scene family: the Panda on the tabletop, the Sawyer in Meta-World (same pool, as in the paper)."""
+    return "sawyer" if scene == "metaworld" else "panda"
+
+
 def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan: int = 0, workers: int = 1,
-             data_dir=None, robot: str = "panda", keep: bool = True, progress: bool = True) -> dict:
+             data_dir=None, robot: str | None = None, keep: bool = True, progress: bool = True) -> dict:
     """Run the evaluation and return the report (also written into the catalog as rollouts)."""
     from studio.data.paths import resolve_data_dir
     from studio.sim.tasks import get_task
@@ -170,6 +175,7 @@ def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan
     if len(scenes) != 1:
         raise ValueError(f"evaluate one scene at a time, got tasks from {sorted(scenes)}")
     scene = scenes.pop()
+    robot = robot or default_robot(scene)
     root = str(resolve_data_dir(data_dir))
     eval_id = f"eval-{uuid.uuid4().hex[:10]}"
     checkpoint_id = None if checkpoint == "oracle" else Path(checkpoint).stem
@@ -218,14 +224,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--replan", type=int, default=0, help="re-plans allowed inside an episode on failure")
     parser.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
-    parser.add_argument("--robot", default="panda", help="the agent robot")
+    parser.add_argument("--robot", default=None, help="the agent robot (default: panda; sawyer for metaworld)")
     parser.add_argument("--no-store", action="store_true", help="do not store the rollouts (catalog rows only)")
     parser.add_argument("--json", action="store_true", help="print the full report as JSON")
     add_data_dir_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    tasks = resolve_tasks(args.tasks, args.scene)
+    scene = args.scene
+    if args.tasks not in ("held-out", "test", "train", "all"):
+        from studio.sim.tasks import get_task
+
+        scene = get_task(args.tasks.split(",")[0].strip()).scene
+    tasks = resolve_tasks(args.tasks, scene)
     report = evaluate(args.checkpoint, tasks, args.episodes, args.seed, args.replan, args.workers, args.data_dir,
                       args.robot, keep=not args.no_store)
     if args.json:

@@ -23,7 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
-from studio.sim.env import SimEnv
+from studio.sim.env import SimEnv, make_env
 from studio.sim.experts import expert_waypoints
 from studio.sim.recorder import Recorder
 from studio.sim.recording import Recording
@@ -92,6 +92,8 @@ class OraclePlanner:
     """
 
     def __init__(self, env: SimEnv):
+        if env.scene not in ("pick_place", "push"):
+            raise ValueError(f"the oracle planner knows the tabletop scenes only, not {env.scene!r}")
         self.env = env
 
     def plan(self, expert_frames, agent_frame, K, T_world_cam):
@@ -253,12 +255,12 @@ def run_rollout_job(ctx) -> dict:
     if missing:
         raise ValueError(f"rollout job spec lacks {missing}")
     task = get_task(str(spec["task"]))
-    robot = str(spec.get("robot", "panda"))
+    robot = str(spec.get("robot", "sawyer" if task.scene == "metaworld" else "panda"))
     replans = int(spec.get("replans", 0))
     if ctx.data_dir is None:
         raise ValueError("rollout jobs need a worker started with --data-dir (the store with the demonstration)")
     store = _cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
-    env = _cached(("env", task.scene, robot), lambda: SimEnv(task.scene, robot))
+    env = _cached(("env", task.scene, robot), lambda: make_env(task.scene, robot))
     planner = load_planner(str(spec["checkpoint"]), env)
     if hasattr(planner, "clear_cache"):
         planner.clear_cache()
