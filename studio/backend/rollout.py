@@ -265,9 +265,13 @@ def run_rollout_job(ctx) -> dict:
     if hasattr(planner, "clear_cache"):
         planner.clear_cache()
     expert_frames = store.load_frames(str(spec["expert_episode_id"]))
+    speed = float(spec.get("speed", 1.0))
+    if speed < 0:
+        raise ValueError(f"rollout job speed must be >= 0, got {speed}")
     total_ticks = [0]
     last_pose = [0.0]
     seq = [0]
+    wall_start = _time.monotonic()
 
     def on_event(kind: str, info: dict) -> None:
         if kind == "waypoint":
@@ -295,6 +299,10 @@ def run_rollout_job(ctx) -> dict:
 
     def on_tick() -> None:
         total_ticks[0] += 1
+        if speed > 0:  # pace the simulation so that viewers see it in (scaled) real time
+            ahead = total_ticks[0] * env.control_dt / speed - (_time.monotonic() - wall_start)
+            if ahead > 0:
+                _time.sleep(ahead)
         now = _time.monotonic()
         if speed > 0:  # paced for watching: simulated time runs at `speed` x wall time
             if not wall_start:
