@@ -271,7 +271,6 @@ def run_rollout_job(ctx) -> dict:
     total_ticks = [0]
     last_pose = [0.0]
     seq = [0]
-    wall_start = _time.monotonic()
 
     def on_event(kind: str, info: dict) -> None:
         if kind == "waypoint":
@@ -294,15 +293,10 @@ def run_rollout_job(ctx) -> dict:
             return
         ctx.progress(total_ticks[0], message=msg)
 
-    speed = float(spec.get("speed", 0.0))
     wall_start: list[float] = []
 
     def on_tick() -> None:
         total_ticks[0] += 1
-        if speed > 0:  # pace the simulation so that viewers see it in (scaled) real time
-            ahead = total_ticks[0] * env.control_dt / speed - (_time.monotonic() - wall_start)
-            if ahead > 0:
-                _time.sleep(ahead)
         now = _time.monotonic()
         if speed > 0:  # paced for watching: simulated time runs at `speed` x wall time
             if not wall_start:
