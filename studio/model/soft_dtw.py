@@ -5,9 +5,11 @@
 
 The dynamic program R[i, j] = D[i, j] + softmin_γ(R[i−1, j−1], R[i−1, j], R[i, j−1]) is swept one anti-diagonal
 at a time (all cells with i + j = k depend only on diagonals k−1 and k−2), vectorised over the batch and the
-diagonal, so the Python loop has n + m − 1 iterations. The backward pass is written by hand with the standard
-E-recursion (the expected alignment matrix), swept in reverse diagonals, instead of letting autograd record the
-forward loop: memory is two (B, n+2, m+2) tables and there is no graph of n·m nodes.
+diagonal, so the Python loop has n + m − 1 iterations. The tables are stored skewed — row k of the table is
+anti-diagonal k indexed by i — so a diagonal's predecessors are contiguous slices, not gathers. The backward pass
+is written by hand with the standard E-recursion (the expected alignment matrix), swept in reverse diagonals,
+instead of letting autograd record the forward loop: memory is two (B, n+m+3, n+2) tables and no graph of n·m
+nodes.
 
 Variable lengths: ``x_lengths``/``y_lengths`` give each sequence's true length; the value is read at
 R[len_x, len_y] and the E-recursion starts there. Padded cells are computed on zeroed costs and masked out of the
@@ -17,65 +19,95 @@ leak gradient. The cost tensor's padded entries receive exactly zero gradient.
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 _INF = float("inf")
 
 
-def _diagonals(n: int, m: int, device: torch.device) -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """1-based (i, j) indices of every anti-diagonal i + j = k, k = 2 … n + m."""
-    out = []
-    for k in range(2, n + m + 1):
-        i = torch.arange(max(1, k - m), min(n, k - 1) + 1, device=device)
-        out.append((i, k - i))
-    return out
+@functools.lru_cache(maxsize=32)
+def _skew_index(n: int, m: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """Gather indices between the padded (n+2, m+2) grid and the skewed (n+m+3 diagonals, n+2 rows) layout.
+
+    Returns ``to_skew`` (n+m+3, n+2): flat grid index of cell (i, k − i), or of the zero corner when the cell
+    falls outside the grid; and ``from_skew`` (n, m): flat skewed index of cell (i, j), 1 ≤ i ≤ n, 1 ≤ j ≤ m.
+    """
+    k = torch.arange(n + m + 3)[:, None]
+    i = torch.arange(n + 2)[None, :]
+    j = k - i
+    inside = (j >= 0) & (j <= m + 1)
+    to_skew = torch.where(inside, i * (m + 2) + j, torch.zeros_like(j))
+    ii = torch.arange(1, n + 1)[:, None]
+    jj = torch.arange(1, m + 1)[None, :]
+    from_skew = (ii + jj) * (n + 2) + ii
+    return to_skew.to(device), from_skew.to(device)
+
+
+def _skewed_cells(n: int, m: int, x_lengths: torch.Tensor, y_lengths: torch.Tensor) -> torch.Tensor:
+    """(B, n+m+3, n+2) mask of the cells (i, j = k − i) with 1 ≤ i ≤ len_x and 1 ≤ j ≤ len_y."""
+    dev = x_lengths.device
+    k = torch.arange(n + m + 3, device=dev)[None, :, None]
+    i = torch.arange(n + 2, device=dev)[None, None, :]
+    j = k - i
+    lx = x_lengths[:, None, None]
+    ly = y_lengths[:, None, None]
+    return (i >= 1) & (i <= lx) & (j >= 1) & (j <= ly)
 
 
 class _SoftDTW(torch.autograd.Function):
+    """R and E live in a skewed layout — row k holds anti-diagonal i + j = k indexed by i — so the three
+    predecessors (or successors) of a whole diagonal are plain slices of the neighbouring rows."""
+
     @staticmethod
     def forward(ctx, cost, gamma, x_lengths, y_lengths):
         B, n, m = cost.shape
+        dt, dev = cost.dtype, cost.device
         valid = _valid_mask(x_lengths, y_lengths, n, m)
-        D = torch.zeros(B, n + 2, m + 2, dtype=cost.dtype, device=cost.device)
-        D[:, 1 : n + 1, 1 : m + 1] = torch.where(
-            valid, cost, torch.zeros((), dtype=cost.dtype, device=cost.device)
-        )
-        R = torch.full((B, n + 2, m + 2), _INF, dtype=cost.dtype, device=cost.device)
+        D = torch.zeros(B, n + 2, m + 2, dtype=dt, device=dev)
+        D[:, 1 : n + 1, 1 : m + 1] = torch.where(valid, cost, torch.zeros((), dtype=dt, device=dev))
+        to_skew, _ = _skew_index(n, m, dev)
+        Dk = D.flatten(1)[:, to_skew]  # (B, n+m+3, n+2)
+        cells = _skewed_cells(n, m, x_lengths, y_lengths)
+        grid = _skewed_cells(n, m, torch.full_like(x_lengths, n), torch.full_like(y_lengths, m))[0]
+        R = torch.full_like(Dk, _INF)
         R[:, 0, 0] = 0.0
-        diagonals = _diagonals(n, m, cost.device)
-        for i, j in diagonals:
-            prev = torch.stack([R[:, i - 1, j - 1], R[:, i - 1, j], R[:, i, j - 1]], dim=-1)
+        inf = torch.full((), _INF, dtype=dt, device=dev)
+        for k in range(2, n + m + 1):
+            prev = torch.stack([R[:, k - 2, 0:n], R[:, k - 1, 0:n], R[:, k - 1, 1 : n + 1]], dim=-1)
             soft = -gamma * torch.logsumexp(-prev / gamma, dim=-1)
-            R[:, i, j] = D[:, i, j] + soft
-        b = torch.arange(B, device=cost.device)
-        value = R[b, x_lengths, y_lengths]
-        ctx.save_for_backward(D, R, x_lengths, y_lengths)
+            R[:, k, 1 : n + 1] = torch.where(grid[k, 1 : n + 1], Dk[:, k, 1 : n + 1] + soft, inf)
+        b = torch.arange(B, device=dev)
+        value = R[b, x_lengths + y_lengths, x_lengths]
+        ctx.save_for_backward(Dk, R, cells, x_lengths, y_lengths)
         ctx.gamma = gamma
-        ctx.diagonals = diagonals
         return value
 
     @staticmethod
     def backward(ctx, grad_value):
-        D, R, x_lengths, y_lengths = ctx.saved_tensors
+        Dk, R, cells, x_lengths, y_lengths = ctx.saved_tensors
         gamma = ctx.gamma
-        n, m = R.shape[1] - 2, R.shape[2] - 2
+        _, K, rows = R.shape
+        n = rows - 2
+        m = K - n - 3
         E = torch.zeros_like(R)
-        lx = x_lengths[:, None]
-        ly = y_lengths[:, None]
         zero = torch.zeros((), dtype=R.dtype, device=R.device)
         one = torch.ones((), dtype=R.dtype, device=R.device)
-        for i, j in reversed(ctx.diagonals):
-            r = R[:, i, j]
+        rows_i = torch.arange(1, n + 1, device=R.device)[None, :]
+        end_k = (x_lengths + y_lengths)[:, None]
+        lx = x_lengths[:, None]
+        here = slice(1, n + 1)
+        down = slice(2, n + 2)
+        for k in range(n + m, 1, -1):
+            r = R[:, k, here]
             total = torch.zeros_like(r)
-            for di, dj in ((1, 0), (0, 1), (1, 1)):
-                ni, nj = i + di, j + dj
-                inside = (ni <= lx) & (nj <= ly)
-                weight = torch.exp((R[:, ni, nj] - r - D[:, ni, nj]) / gamma)
-                total = total + torch.where(inside, weight * E[:, ni, nj], zero)
-            is_end = (i == lx) & (j == ly)
-            in_range = (i <= lx) & (j <= ly)
-            E[:, i, j] = torch.where(is_end, one, torch.where(in_range, total, zero))
-        grad_cost = E[:, 1 : n + 1, 1 : m + 1] * grad_value[:, None, None]
+            for kk, rr in ((k + 1, down), (k + 1, here), (k + 2, down)):  # (i+1, j), (i, j+1), (i+1, j+1)
+                weight = torch.exp((R[:, kk, rr] - r - Dk[:, kk, rr]) / gamma)
+                total = total + torch.where(cells[:, kk, rr], weight * E[:, kk, rr], zero)
+            is_end = (k == end_k) & (rows_i == lx)
+            E[:, k, here] = torch.where(is_end, one, torch.where(cells[:, k, here], total, zero))
+        _, from_skew = _skew_index(n, m, R.device)
+        grad_cost = E.flatten(1)[:, from_skew] * grad_value[:, None, None]
         return grad_cost, None, None, None
 
 
