@@ -1,4 +1,4 @@
-"""Replaying a stored simulated episode for viewers: the scene's geometry and its body poses at any step.
+"""Scenes for viewers without a live simulation: a stored episode replayed, or the start of (task, seed).
 
 Episodes store the robot's joint positions and the free objects' poses at every control tick, not the
 whole physics state; forward kinematics of the scene model on those gives every body's pose, in the
@@ -67,3 +67,18 @@ class EpisodeReplay:
     def ee_path(self) -> np.ndarray:
         """(T, 3) end-effector positions in the world."""
         return np.asarray(self.arrays["ee_pos_world"], dtype=np.float64)
+
+
+def scene_snapshot(scene: str, robot: str, task: str, seed: int) -> tuple[msg.SceneGeometry, np.ndarray]:
+    """The geometry of (scene, robot) and every body's pose right after ``reset(task, seed)``.
+
+    This is the state a rollout of (task, seed) starts from, so viewers can show it before it runs.
+    """
+    from studio.sim.env import make_env
+
+    env = make_env(scene, robot)
+    try:
+        env.reset(task, seed)
+        return scene_geometry(env.model), body_poses(env.data)
+    finally:
+        env.close()

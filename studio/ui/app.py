@@ -1,169 +1,343 @@
-"""The studio's browser app: every tab gets its own teleop session, mirrored scene and panels.
+"""The browser studio: the hub, its workers, the viser server, and one :class:`StudioTab` per browser tab.
 
-Today the app hosts teleoperation and recording (drag the gizmo, open/close the gripper, record, save
-into the episode store) with the simulation running in this process; the panels for training,
-imitation and the rollout inspector attach to the Zenoh workers as those land.
+:class:`StudioApp` owns what exists once: the :class:`~studio.backend.hub.Hub` (bus router, job queue,
+worker directory, episode store), the embedded sim worker and trainer (unless ``workers="none"``), the
+:class:`~studio.ui.job_board.JobBoard` every tab reads jobs from and the
+:class:`~studio.ui.runs.RunRegistry`. The UI is a client of those services, never a second simulator:
+teleop sessions run on a sim worker, plans and rollouts are jobs, training is a job.
+
+Each :class:`StudioTab` has its own scene, its own teleop session and the panels (Teleop & record,
+Upload, Datasets, Train, Imitate, Inspect, Workers). What its scene shows is its *view mode*: the live
+teleop session, a running rollout, or a replay. Pose updates reach the scene through one pump thread
+per tab (latest wins, at most :data:`MAX_POSE_HZ`), so a slow browser never slows the simulation.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import threading
 import time
+import traceback
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import viser
 
-from studio.data.store import EpisodeStore
-from studio.sim.tasks import list_tasks
-from studio.ui.scene_mirror import SceneMirror
-from studio.ui.teleop import TeleopSession
+from studio.backend import bus
+from studio.backend import messages as msg
+from studio.backend.hub import Hub
+from studio.ui.job_board import JobBoard
+from studio.ui.runs import RunRegistry
+from studio.ui.scene_view import SceneView
 
-HINTS = """**Teleop & record.** Drag the gizmo at the gripper to move the arm (it follows through IK);
-use *Close* / *Open* for the gripper. *Record* starts an episode, *Stop & save* stores it in the
-dataset (success is pre-filled by the task's check), *Discard* drops it. Sawyer recordings are expert
-demonstrations, Panda recordings agent trajectories."""
+log = logging.getLogger("studio.ui")
 
-POSE_HZ = 30.0
+#: Upper bound of scene updates sent to one browser tab per second.
+MAX_POSE_HZ = 60.0
+#: How often panels refresh what they show from jobs, workers and the store.
+REFRESH_HZ = 2.0
 
 
-class ClientPanel:
-    """What one browser tab sees and drives."""
+class TeleopStats:
+    """Drag-to-motion latency measured on the server, for ``studio bench ui``.
+
+    ``ack_ms``: from the moment the server received a gizmo drag to the first pose frame back from the
+    sim worker that applied it; ``push_ms``: to the moment that frame's poses were queued for the browser.
+    """
+
+    def __init__(self, keep: int = 20000):
+        self.keep = keep
+        self.ack_ms: list[float] = []
+        self.push_ms: list[float] = []
+        self._lock = threading.Lock()
+
+    def add(self, which: str, ms: float) -> None:
+        with self._lock:
+            series = self.ack_ms if which == "ack" else self.push_ms
+            if len(series) < self.keep:
+                series.append(ms)
+
+    def reset(self) -> None:
+        with self._lock:
+            self.ack_ms.clear()
+            self.push_ms.clear()
+
+
+class StudioTab:
+    """One browser tab: its scene view, its panels, and the threads that keep them current."""
 
     def __init__(self, app: StudioApp, client: viser.ClientHandle):
+        from studio.ui.panels.datasets import DatasetsPanel
+        from studio.ui.panels.imitate import ImitatePanel
+        from studio.ui.panels.inspector import InspectorPanel
+        from studio.ui.panels.teleop import TeleopPanel
+        from studio.ui.panels.train import TrainPanel
+        from studio.ui.panels.upload import UploadPanel
+        from studio.ui.panels.workers import WorkersPanel
+
         self.app, self.client = app, client
-        self.session: TeleopSession | None = None
-        self.mirror: SceneMirror | None = None
-        self.gizmo = None
-        self._last_push = 0.0
+        self.view = SceneView(client)
+        self.feed = bus.Latest()
+        self.mode = "teleop"
+        self._token = 0
+        self._closed = threading.Event()
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"tab{client.client_id}")
+        self.pose_pushes = 0
         gui = client.gui
-        with gui.add_folder("Teleop & record"):
-            gui.add_markdown(HINTS)
-            self.robot = gui.add_dropdown("Robot", ("sawyer", "panda"), initial_value="sawyer")
-            self.task = gui.add_dropdown("Task", tuple(list_tasks()), initial_value=list_tasks()[0])
-            self.seed = gui.add_number("Seed", initial_value=0, min=0, step=1)
-            new_seed = gui.add_button("New seed")
-            reset = gui.add_button("Reset")
-            grip = gui.add_button_group("Gripper", ("Open", "Close"))
-            self.record = gui.add_button("Record", color="red")
-            self.stop = gui.add_button("Stop & save", disabled=True)
-            self.discard = gui.add_button("Discard", disabled=True)
-            self.success = gui.add_checkbox("Mark as success", initial_value=False)
-            self.status = gui.add_markdown("Starting the simulator…")
-            self.preview = gui.add_image(np.zeros((120, 160, 3), dtype=np.uint8), label="External camera")
-            delete_last = gui.add_button("Delete last episode")
-        self.robot.on_update(lambda _: self.open_session())
-        self.task.on_update(lambda _: self.open_session())
-        reset.on_click(lambda _: self.open_session())
-        new_seed.on_click(lambda _: self._new_seed())
-        grip.on_click(lambda e: self.session and self.session.set_gripper(1.0 if e.target.value == "Close" else 0.0))
-        self.record.on_click(lambda _: self._start())
-        self.stop.on_click(lambda _: self._stop_and_save())
-        self.discard.on_click(lambda _: self._discard())
-        delete_last.on_click(lambda _: self._delete_last())
-        self.open_session()
+        gui.configure_theme(control_width="large", show_logo=False)
+        self.view_note = gui.add_markdown("")
+        self.back_to_teleop = gui.add_button("Back to the live teleop scene", visible=False)
+        self.back_to_teleop.on_click(lambda _: self.run(self.teleop.show_live, "showing the teleop scene"))
+        tabs = gui.add_tab_group()
+        with tabs.add_tab("Teleop", icon=viser.Icon.HAND_GRAB):
+            self.teleop = TeleopPanel(self)
+        with tabs.add_tab("Upload", icon=viser.Icon.UPLOAD):
+            self.upload = UploadPanel(self)
+        with tabs.add_tab("Data", icon=viser.Icon.DATABASE):
+            self.datasets = DatasetsPanel(self)
+        with tabs.add_tab("Train", icon=viser.Icon.CHART_LINE):
+            self.train = TrainPanel(self)
+        with tabs.add_tab("Imitate", icon=viser.Icon.ROBOT):
+            self.imitate = ImitatePanel(self)
+        with tabs.add_tab("Inspect", icon=viser.Icon.TIMELINE):
+            self.inspector = InspectorPanel(self)
+        with tabs.add_tab("Workers", icon=viser.Icon.SERVER):
+            self.workers = WorkersPanel(self)
+        self.panels = [
+            self.teleop,
+            self.upload,
+            self.datasets,
+            self.train,
+            self.imitate,
+            self.inspector,
+            self.workers,
+        ]
+        self._pump = threading.Thread(target=self._pump_loop, name=f"pump{client.client_id}", daemon=True)
+        self._pump.start()
+        self.teleop.start()
 
-    # ------------------------------------------------------------------ session
-    def open_session(self) -> None:
-        task = self.task.value
-        scene = task.split("/")[0]
-        if self.session is not None:
-            self.session.close()
-        if self.mirror is not None:
-            self.mirror.remove()
-        self.session = TeleopSession(scene, self.robot.value, task, int(self.seed.value), on_tick=self._on_tick)
-        self.mirror = SceneMirror(self.client.scene, self.session.env.model)
-        ee = self.session.env.ee_pos
-        if self.gizmo is None:
-            self.gizmo = self.client.scene.add_transform_controls(
-                "/gizmo", scale=0.15, disable_rotations=True, position=ee)
-            self.gizmo.on_update(lambda _: self.session and self.session.set_target(self.gizmo.position))
-        self.gizmo.position = ee
-        self._set_recording_ui(False)
-        self.status.content = f"**{task}** with the **{self.robot.value}**, seed {int(self.seed.value)}. Ready."
+    # ------------------------------------------------------------------ helpers for panels
+    def run(self, fn: Callable[[], Any], what: str) -> None:
+        """Run a slow action off viser's callback threads (one at a time per tab); errors become notifications."""
 
-    def _new_seed(self) -> None:
-        self.seed.value = int(np.random.default_rng().integers(0, 1_000_000))
-        self.open_session()
+        def guarded() -> None:
+            try:
+                fn()
+            except Exception as e:
+                log.warning("tab %s: %s failed:\n%s", self.client.client_id, what, traceback.format_exc())
+                self.notify(f"Could not finish {what}", _describe(e), error=True)
 
-    def _on_tick(self, session: TeleopSession) -> None:
-        now = time.perf_counter()
-        if now - self._last_push < 1.0 / POSE_HZ or self.mirror is None:
-            return
-        self._last_push = now
-        with session.lock:
-            self.mirror.update(session.env.data)
-        if session.env.steps % 10 == 0:
-            self.preview.image = session.env.render(size=(120, 160))
+        if not self._closed.is_set():
+            self._executor.submit(guarded)
 
-    # ------------------------------------------------------------------ recording
-    def _set_recording_ui(self, recording: bool) -> None:
-        self.record.disabled = recording
-        self.stop.disabled = not recording
-        self.discard.disabled = not recording
+    def notify(self, title: str, body: str, error: bool = False, seconds: float | None = None) -> None:
+        with contextlib.suppress(Exception):
+            self.client.add_notification(
+                title, body, color="red" if error else None,
+                auto_close_seconds=seconds if seconds is not None else (None if error else 5.0),
+            )  # fmt: skip
 
-    def _start(self) -> None:
-        self.session.start_recording()
-        self._set_recording_ui(True)
-        self.status.content = "● **Recording** — move the arm, then *Stop & save* or *Discard*."
+    # ------------------------------------------------------------------ the scene's view mode
+    def set_mode(self, mode: str, note: str = "") -> int:
+        """Switch what the scene shows; returns the token pose sources must present (stale ones are dropped)."""
+        self._token += 1
+        self.mode = mode
+        self.view_note.content = note
+        self.back_to_teleop.visible = mode != "teleop"
+        for name in ("plan", "path", "rollout"):
+            if mode == "teleop":
+                self.view.clear_overlay(name)
+        return self._token
 
-    def _discard(self) -> None:
-        self.session.discard_recording()
-        self._set_recording_ui(False)
-        self.status.content = "Recording discarded."
+    @property
+    def token(self) -> int:
+        return self._token
 
-    def _stop_and_save(self) -> None:
-        self._set_recording_ui(False)
-        rec = self.session.stop_recording()
-        if rec is None:
-            self.status.content = "Nothing was recorded."
-            return
-        rec.success = bool(rec.success or self.success.value)
-        role = "expert" if rec.robot == "sawyer" else "agent"
-        meta = self.app.store.add_episode(rec, role=role, source="teleop")
-        self.status.content = f"Saved episode `{meta.id}` ({rec.num_steps} steps, success={rec.success})."
-        self.client.add_notification("Episode saved", f"{rec.task}: {meta.id}", auto_close_seconds=4.0)
+    def push_poses(self, token: int, poses: np.ndarray, ack: tuple[int, float] | None = None) -> None:
+        """Hand the latest poses of the current source to the pump (ignored if the mode has changed)."""
+        if token == self._token:
+            self.feed.put((token, poses, ack))
 
-    def _delete_last(self) -> None:
-        meta = self.app.store.delete_last(source="teleop")
-        self.status.content = f"Deleted episode `{meta.id}`." if meta else "No teleop episode to delete."
+    def _pump_loop(self) -> None:
+        version = 0
+        next_push = 0.0
+        while not self._closed.is_set():
+            value, version = self.feed.wait_newer(version, 0.5)
+            if value is None or self._closed.is_set():
+                continue
+            token, poses, ack = value
+            if token != self._token:
+                continue
+            now = time.perf_counter()
+            if now < next_push:
+                time.sleep(next_push - now)
+                value, version = self.feed.get()  # newer poses may have arrived meanwhile: latest wins
+                token, poses, ack = value
+                if token != self._token:
+                    continue
+            next_push = time.perf_counter() + 1.0 / MAX_POSE_HZ
+            try:
+                self.view.apply(poses)
+                self.pose_pushes += 1
+            except Exception:
+                log.exception("tab %s: pose update failed", self.client.client_id)
+                continue
+            if ack is not None:
+                self.app.stats.add("push", 1e3 * (time.perf_counter() - ack[1]))
+
+    def refresh(self) -> None:
+        for panel in self.panels:
+            try:
+                panel.refresh()
+            except Exception:
+                log.exception("tab %s: refreshing %s failed", self.client.client_id, type(panel).__name__)
 
     def close(self) -> None:
-        if self.session is not None:
-            self.session.close()
+        self._closed.set()
+        if self._pump is not threading.current_thread():
+            self._pump.join(timeout=1.0)
+        for panel in self.panels:
+            with contextlib.suppress(Exception):
+                panel.close()
+        self._executor.shutdown(wait=False, cancel_futures=True)
+
+
+def _describe(e: BaseException) -> str:
+    if isinstance(e, bus.RemoteError):
+        return e.message
+    return str(e) or type(e).__name__
 
 
 class StudioApp:
-    """The viser server and one :class:`ClientPanel` per connected tab."""
+    """The studio server.
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 8080, data_dir=None):
-        self.store = EpisodeStore(data_dir)
-        self.server = viser.ViserServer(host=host, port=port, label="OSVI Studio")
-        self.server.scene.set_up_direction("+z")
-        self.panels: dict[int, ClientPanel] = {}
-        self._lock = threading.Lock()
-        self.server.on_client_connect(self._connect)
-        self.server.on_client_disconnect(self._disconnect)
+    Args:
+        host, port: where the browser connects (loopback unless told otherwise; the next free port is used
+            if ``port`` is taken).
+        data_dir: dataset root (None: ``STUDIO_DATA_DIR`` or the user data directory).
+        bus_config: the hub's Zenoh configuration (default: a router on ``tcp/127.0.0.1:7447``).
+        workers: ``"embedded"`` starts one sim worker and one trainer as child processes; ``"none"`` waits
+            for external workers (``studio worker sim|train --connect …``).
+        policy_dir: where shipped policies are looked for (default ``studio/policies``).
+    """
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        data_dir: str | Path | None = None,
+        bus_config: bus.BusConfig | None = None,
+        workers: str = "embedded",
+        policy_dir: str | Path | None = None,
+    ):
+        from studio.backend.embedded import start_embedded_workers
+
+        if workers not in ("embedded", "none"):
+            raise ValueError(f"workers must be 'embedded' or 'none', got {workers!r}")
+        self.hub = Hub(bus_config, data_dir=data_dir)
+        self.store = self.hub.store
+        self.data_dir = self.hub.data_dir
+        self.embedded = None
+        self.server: viser.ViserServer | None = None
+        try:
+            if workers == "embedded":
+                self.embedded = start_embedded_workers(self.hub)
+            self.jobs = JobBoard(self.hub.job_client)
+            self.runs = RunRegistry(self.data_dir, policy_dir)
+            self.stats = TeleopStats()
+            self.dataset_version = 0
+            self._dataset_mark: tuple | None = None
+            self.tabs: dict[int, StudioTab] = {}
+            self._lock = threading.Lock()
+            self._geometry: dict[tuple, msg.SceneGeometry] = {}
+            self._stop = threading.Event()
+            self.server = viser.ViserServer(host=host, port=port, label="OSVI Studio", verbose=False)
+            self.server.scene.set_up_direction("+z")
+            self.server.scene.world_axes.visible = False
+            # Shadows cost every frame and add little to a tabletop scene; without them laptops without a
+            # good GPU (and software WebGL) keep up with 60 Hz updates.
+            self.server.scene.configure_default_lights(enabled=True, cast_shadow=False)
+            self.server.on_client_connect(self._connect)
+            self.server.on_client_disconnect(self._disconnect)
+            self._ticker = threading.Thread(target=self._tick_loop, name="studio-refresh", daemon=True)
+            self._ticker.start()
+        except BaseException:
+            self.stop()
+            raise
 
     @property
     def url(self) -> str:
         host = self.server.get_host()
         return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.server.get_port()}"
 
+    # ------------------------------------------------------------------ tabs
     def _connect(self, client: viser.ClientHandle) -> None:
-        client.camera.position = (0.0, 1.6, 0.9)
-        client.camera.look_at = (0.0, 0.35, 0.1)
-        panel = ClientPanel(self, client)
+        client.camera.position = (0.8, 1.15, 0.7)
+        client.camera.look_at = (-0.08, 0.36, 0.12)
+        client.camera.up_direction = (0.0, 0.0, 1.0)
+        tab = StudioTab(self, client)
         with self._lock:
-            self.panels[client.client_id] = panel
+            self.tabs[client.client_id] = tab
 
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._lock:
-            panel = self.panels.pop(client.client_id, None)
-        if panel is not None:
-            panel.close()
+            tab = self.tabs.pop(client.client_id, None)
+        if tab is not None:
+            tab.close()
+
+    def _tick_loop(self) -> None:
+        while not self._stop.wait(1.0 / REFRESH_HZ):
+            try:
+                self.jobs.poll()
+                self._check_dataset()
+            except Exception:
+                log.exception("refresh failed")
+            with self._lock:
+                tabs = list(self.tabs.values())
+            for tab in tabs:
+                tab.refresh()
+
+    def _check_dataset(self) -> None:
+        ids = self.store.catalog.episode_ids()
+        rollouts = self.store.catalog.rollouts(limit=1)
+        mark = (len(ids), max(ids) if ids else "", rollouts[0].id if rollouts else "")
+        if mark != self._dataset_mark:
+            self._dataset_mark = mark
+            self.dataset_version += 1
+
+    def dataset_changed(self) -> None:
+        """Called after this process changed the store (tabs refresh their lists)."""
+        self._dataset_mark = None
+
+    # ------------------------------------------------------------------ scenes without a live session
+    def geometry(self, scene: str, robot: str, task: str, seed: int) -> tuple[msg.SceneGeometry, np.ndarray]:
+        """Geometry of (scene, robot) and the bodies' poses at the start of (task, seed), from the scene files."""
+        from studio.backend.replay import scene_snapshot
+
+        geometry, poses = scene_snapshot(scene, robot, task, seed)
+        key = (scene, robot, task if scene == "metaworld" else "")
+        with self._lock:
+            geometry = self._geometry.setdefault(key, geometry)
+        return geometry, poses
+
+    # ------------------------------------------------------------------ lifecycle
+    def wait_for_workers(self, timeout: float = 60.0) -> bool:
+        """Wait until the embedded workers (if any) have joined the bus."""
+        return True if self.embedded is None else self.embedded.wait_ready(self.hub.directory, timeout)
 
     def stop(self) -> None:
-        for panel in list(self.panels.values()):
-            panel.close()
-        self.server.stop()
-        self.store.close()
+        if hasattr(self, "_stop"):
+            self._stop.set()
+        for tab in list(getattr(self, "tabs", {}).values()):
+            tab.close()
+        if self.server is not None:
+            self.server.stop()
+        if getattr(self, "jobs", None) is not None:
+            self.jobs.close()
+        if self.embedded is not None:
+            self.embedded.stop()
+        self.hub.close()

@@ -1,30 +1,71 @@
-"""`studio serve`: start the browser studio and print its URL (loopback unless told otherwise)."""
+"""`studio serve`: the studio in the browser — hub, embedded workers and the viser app — and print its URL.
+
+    studio serve [--host 127.0.0.1] [--port 8080] [--data-dir DIR] [--workers embedded|none] [--listen ENDPOINT]
+
+Everything stays on this machine by default: the web server binds to 127.0.0.1 and the bus router listens
+on ``tcp/127.0.0.1:7447``. Serving other machines is an explicit choice (``--host 0.0.0.0``; workers on
+other machines need ``--listen tcp/0.0.0.0:7447``, see docs/deployment.md). ``--workers none`` starts no
+worker, so that external ones (``studio worker sim|train``) do the work.
+"""
 
 from __future__ import annotations
 
 import argparse
-import time
+import logging
+import signal
+import sys
+import threading
 
+from studio.backend import bus
 from studio.data.paths import add_data_dir_argument
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1",
-                        help="interface to bind; 127.0.0.1 (default) keeps the studio on this machine")
-    parser.add_argument("--port", type=int, default=8080, help="port (the next free one is used if taken)")
+                        help="interface to bind; 127.0.0.1 (default) keeps the studio on this machine")  # fmt: skip
+    parser.add_argument(
+        "--port", type=int, default=8080, help="web port (the next free one is used if taken)"
+    )
     add_data_dir_argument(parser)
+    parser.add_argument("--workers", choices=("embedded", "none"), default="embedded",
+                        help="embedded (default): start one sim worker and one trainer here; none: wait for "
+                             "external workers")  # fmt: skip
+    parser.add_argument("--log-level", default="WARNING", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    bus.add_bus_arguments(parser, "hub")
 
 
 def run(args: argparse.Namespace) -> int:
     from studio.ui.app import StudioApp
 
-    app = StudioApp(host=args.host, port=args.port, data_dir=args.data_dir)
-    print(f"OSVI Studio running at {app.url}  (data: {app.store.root}; Ctrl+C to stop)", flush=True)
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
-        while True:
-            time.sleep(3600)
-    except KeyboardInterrupt:
-        pass
+        config = bus.bus_config_from_args(args, "hub")
+    except ValueError as e:
+        print(f"studio serve: {e}", file=sys.stderr)
+        return 2
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"studio serve: serving on {args.host} — other machines can reach this studio", file=sys.stderr)
+    try:
+        app = StudioApp(host=args.host, port=args.port, data_dir=args.data_dir, bus_config=config,
+                        workers=args.workers)  # fmt: skip
+    except bus.BusError as e:
+        print(f"studio serve: {e}", file=sys.stderr)
+        return 1
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    workers = (
+        "one sim worker and one trainer"
+        if args.workers == "embedded"
+        else "no workers (waiting for external ones)"
+    )
+    print(
+        f"OSVI Studio running at {app.url}  (data: {app.data_dir}; bus: {', '.join(config.listen)}; {workers}; "
+        "Ctrl+C to stop)",
+        flush=True,
+    )
+    try:
+        stop.wait()
     finally:
         app.stop()
     return 0

@@ -1,59 +1,376 @@
-"""The studio in a real browser: headless Chromium (Debian's) driven by Playwright against `studio serve`."""
+"""The studio in a real browser: Debian's headless Chromium driven by Playwright against the studio server.
 
+The first test runs ``studio serve`` as a user would (a subprocess that prints its URL). The others share
+one in-process :class:`StudioApp` (with its embedded sim worker and trainer) and one page, so that they can
+drive the gizmo through the same server-side callback a browser drag reaches and look at what the app
+holds. Screenshots of every panel go to the test's temporary directory (printed at the end).
+
+Chromium renders WebGL in software here; the page's animation frames are throttled to ~10 fps so that
+the browser does not starve the simulation on a shared 2-core machine (the pose stream is unaffected:
+it is counted on the websocket, not on the screen).
+"""
+
+from __future__ import annotations
+
+import json
 import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from studio.backend import bus
+
 CHROMIUM = "/usr/bin/chromium"
-pytestmark = pytest.mark.browser
+CHROMIUM_ARGS = [
+    "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+    "--disable-sync", "--no-first-run",
+]  # fmt: skip
+THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window);
+  window.requestAnimationFrame = (cb) => setTimeout(() => raf(cb), 100); })();"""
+HELD_OUT = "pick_place/bar->blue"
+TRAIN_TASKS = ("pick_place/cube->red", "pick_place/cube->green")
+TINY = [
+    "model.image_size=[48, 64]", "model.n_expert_frames=4", "model.n_agent_frames=3", "model.encoder_stages=2",
+    "model.state_channels=16", "model.action_blocks=1", "model.action_heads=2", "model.action_attn_dim=16",
+    "model.action_mlp_dim=32", "model.wm_blocks=1", "model.wm_heads=2", "model.wm_width=32", "model.wm_mlp_dim=64",
+    "model.head_hidden=64", "train.batch_size=4", "train.num_workers=0", "train.log_every=1",
+    "train.checkpoint_every=2", "train.val_every=1000", "train.pairs_per_expert=2",
+]  # fmt: skip
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.timeout(420)]
 
 
-@pytest.fixture()
-def studio_url(tmp_path):
-    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "studio.cli", "serve", "--port", "8431", "--data-dir", str(tmp_path / "data")],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-    )
-    url = None
-    deadline = time.time() + 60
-    while time.time() < deadline and url is None:
-        line = proc.stdout.readline()
-        if "OSVI Studio running at" in line:
-            url = line.split("running at")[1].split()[0]
-        elif proc.poll() is not None:
-            break
-    assert url, "studio serve did not print its URL"
-    yield url
-    proc.terminate()
-    proc.wait(timeout=10)
-
-
-def test_page_loads_and_renders_the_scene(studio_url, tmp_path):
-    from playwright.sync_api import sync_playwright
-
+def _launch(p):
     if not Path(CHROMIUM).exists():
         pytest.fail(f"{CHROMIUM} is missing: ./run test installs Debian's chromium")
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=[
-            "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-            "--disable-sync", "--no-first-run"])
-        page = browser.new_page(viewport={"width": 1280, "height": 800})
-        page.goto(studio_url)
-        page.get_by_text("Teleop & record").first.wait_for(timeout=30000)
-        page.get_by_text("Ready.").first.wait_for(timeout=30000)
-        time.sleep(2)
-        shot = tmp_path / "teleop.png"
-        page.screenshot(path=str(shot))
-        canvas = page.locator("canvas").first
-        assert canvas.is_visible()
-        # The 3D view is not blank: the canvas has many distinct colours.
-        from PIL import Image
+    return p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
 
-        img = Image.open(shot).convert("RGB").crop((0, 0, 900, 800))
-        assert len(img.getcolors(maxcolors=1 << 20) or []) > 200
+
+def _colours(path: Path, box=(0, 0, 700, 700)) -> int:
+    from PIL import Image
+
+    return len(Image.open(path).convert("RGB").crop(box).getcolors(maxcolors=1 << 20) or [])
+
+
+# ---------------------------------------------------------------------------------------------- studio serve
+def test_serve_prints_url_and_renders_the_scene(tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    bus_port = bus.free_loopback_port()
+    cmd = [sys.executable, "-m", "studio.cli", "serve", "--port", str(bus.free_loopback_port()),
+           "--data-dir", str(tmp_path / "data"), "--listen", bus.loopback_endpoint(bus_port)]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        url, line = None, ""
+        deadline = time.time() + 60
+        while time.time() < deadline and url is None:
+            line = proc.stdout.readline()
+            if "OSVI Studio running at" in line:
+                url = line.split("running at")[1].split()[0]
+            elif proc.poll() is not None:
+                break
+        assert url and url.startswith("http://127.0.0.1:"), f"no URL printed (last line: {line!r})"
+        assert "one sim worker and one trainer" in line and f"127.0.0.1:{bus_port}" in line
+        with sync_playwright() as p:
+            browser = _launch(p)
+            page = browser.new_page(viewport={"width": 1100, "height": 720})
+            page.add_init_script(THROTTLE_RAF)
+            page.goto(url)
+            page.get_by_text("ready. Drag the gizmo").first.wait_for(timeout=90_000)
+            time.sleep(1.5)
+            shot = tmp_path / "serve.png"
+            page.screenshot(path=str(shot))
+            assert page.locator("canvas").first.is_visible()
+            assert _colours(shot) > 300, "the 3D view looks blank"
+            page.get_by_role("tab", name="Workers").click()
+            page.get_by_text("train-").first.wait_for(timeout=20_000)
+            assert page.get_by_text("sim-").count() >= 1
+            browser.close()
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    assert proc.returncode == 0, "studio serve did not stop cleanly on SIGTERM"
+
+
+# ---------------------------------------------------------------------------------------------- shared app
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory):
+    d = tmp_path_factory.mktemp("screenshots")
+    yield d
+    print(f"\nscreenshots: {d}")
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    """A store with tiny synthetic training episodes and one stored failed rollout."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
+    from data_fixtures import make_recording
+
+    from studio.backend.rollout import OraclePlanner, run_rollout, store_rollout
+    from studio.data.store import EpisodeStore
+    from studio.sim.env import SimEnv
+
+    root = tmp_path_factory.mktemp("studio") / "data"
+    with EpisodeStore(root) as store:
+        seed = 0
+        for task in TRAIN_TASKS:
+            for robot, role in (("sawyer", "expert"), ("panda", "agent")):
+                for _ in range(3):
+                    store.add_episode(
+                        make_recording(task=task, robot=robot, seed=seed), role=role, source="scripted"
+                    )
+                    seed += 1
+
+        class Misaimed(OraclePlanner):
+            """The oracle's plan shifted 12 cm sideways: reaches the wrong place, grasps nothing."""
+
+            def plan(self, *args):
+                plan = super().plan(*args)
+                plan.waypoints_world = plan.waypoints_world + np.array([0.12, 0.0, 0.0, 0.0])
+                return plan
+
+        with SimEnv("pick_place", "panda", image_size=(120, 160)) as env:
+            frames = np.zeros((10, 120, 160, 3), np.uint8)
+            out = run_rollout(env, Misaimed(env), frames, HELD_OUT, 5, n_frames=20)
+        assert not out.success
+        store_rollout(store, out, expert_episode_id=None, checkpoint_id=None, extra={"checkpoint": "oracle"})
+    return root
+
+
+@pytest.fixture(scope="module")
+def studio(data_dir):
+    from studio.ui.app import StudioApp
+
+    app = StudioApp(port=bus.free_loopback_port(), data_dir=data_dir,
+                    bus_config=bus.BusConfig.hub([bus.loopback_endpoint(bus.free_loopback_port())]))  # fmt: skip
+    try:
+        assert app.wait_for_workers(90), "the embedded workers did not join"
+        yield app
+    finally:
+        app.stop()
+
+
+@pytest.fixture(scope="module")
+def page(studio):
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = _launch(p)
+        pg = browser.new_page(viewport={"width": 1100, "height": 720})
+        pg.add_init_script(THROTTLE_RAF)
+        pg.goto(studio.url)
+        pg.get_by_text("ready. Drag the gizmo").first.wait_for(timeout=90_000)
+        yield pg
         browser.close()
+
+
+def _tab(studio):
+    (tab,) = studio.tabs.values()
+    return tab
+
+
+def _wait(predicate, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def _screen_point(page, client, point: np.ndarray) -> tuple[float, float]:
+    """Where a world point appears on the page (viser cameras follow OpenCV: +z forward, +y down)."""
+    import viser.transforms as vtf
+
+    x0, y0, w, h = page.evaluate(
+        "() => { const r = document.querySelector('canvas').getBoundingClientRect(); return [r.x, r.y, r.width, r.height]; }"
+    )
+    cam = client.camera
+    R = vtf.SO3(np.asarray(cam.wxyz)).as_matrix()
+    p = R.T @ (np.asarray(point) - np.asarray(cam.position))
+    f = (h / 2) / np.tan(cam.fov / 2)
+    return x0 + w / 2 + f * p[0] / p[2], y0 + h / 2 + f * p[1] / p[2]
+
+
+# ---------------------------------------------------------------------------------------------- panels
+def test_teleop_records_and_saves_an_episode(studio, page, shots):
+    tab = _tab(studio)
+    tp = tab.teleop
+    assert tp.info.scene == "pick_place" and tp.info.robot == "sawyer"
+    before = {m.id for m in studio.store.episodes()}
+    page.get_by_role("button", name="Record").click()
+    _wait(lambda: tp._recording, 30, "recording to start")
+    page.get_by_text("● REC").first.wait_for(timeout=20_000)
+    start = np.asarray(_wait(tp.client.latest_pose, 5, "a pose").ee_pos)
+    # The gizmo's drag callback, as the browser reaches it: targets along a path, latest wins.
+    goal = start + np.array([0.06, 0.04, -0.08])
+    for i in range(1, 61):
+        tp.move_to(start + (goal - start) * i / 60)
+        time.sleep(1 / 60)
+    _wait(
+        lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.01,
+        15,
+        "the arm to follow",
+    )
+    assert tab.pose_pushes > 30 and studio.stats.ack_ms, "poses must reach the page and drags be acknowledged"
+    # A real mouse drag on the gizmo's x arrow moves the target along x.
+    tp._place_gizmo(np.asarray(tp.client.latest_pose().ee_pos))
+    time.sleep(1.0)
+    center = np.asarray(tp.gizmo.position)
+    grab = _screen_point(page, tab.client, center + np.array([0.09, 0.0, 0.0]))
+    ahead = _screen_point(page, tab.client, center + np.array([0.14, 0.0, 0.0]))
+    drags_before = tp.drags
+    page.mouse.move(*grab)
+    page.mouse.down()
+    for k in range(1, 11):
+        page.mouse.move(grab[0] + (ahead[0] - grab[0]) * k / 10, grab[1] + (ahead[1] - grab[1]) * k / 10)
+    page.mouse.up()
+    _wait(lambda: tp.drags > drags_before, 20, "the browser's drag to reach the server")
+    assert np.asarray(tp.gizmo.position)[0] > center[0] + 0.01, (
+        "dragging the x arrow moves the gizmo along +x"
+    )
+    page.get_by_role("tab", name="Teleop").click()
+    page.get_by_role("checkbox").first.click()  # the user's verdict overrides the task's check
+    _wait(lambda: tp.success.value and tp._success_touched, 10, "the success box to be ticked")
+    page.screenshot(path=str(shots / "teleop-recording.png"))
+    page.get_by_role("button", name="Stop & save").click()
+    _wait(lambda: tp.status.content.startswith("Saved"), 120, "the episode to be stored")
+    page.get_by_text("Saved").first.wait_for(timeout=20_000)
+    page.screenshot(path=str(shots / "teleop-saved.png"))
+    (new,) = [m for m in studio.store.episodes() if m.id not in before]
+    assert new.source == "teleop" and new.role == "expert" and new.embodiment == "sawyer"
+    assert new.success is True and new.num_steps >= 60 and new.task == "pick_place/cube->red"
+    _, _, arrays = studio.store.load_arrays(new.id)
+    assert np.linalg.norm(arrays["ee_pos_world"][-1] - arrays["ee_pos_world"][0]) > 0.05
+
+
+def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, page, shots, tmp_path):
+    from studio.data.video import write_video
+
+    tab = _tab(studio)
+    page.get_by_role("tab", name="Upload").click()
+    tab.upload.task.value = HELD_OUT
+    frames = np.full((30, 120, 160, 3), 235, np.uint8)
+    for i in range(30):
+        frames[i, 40:80, 4 * i : 4 * i + 30] = (200, 60, 50)  # a "hand" crossing the view
+    video = tmp_path / "demo.mp4"
+    write_video(video, frames, fps=15)
+    page.locator("input[type=file]").first.set_input_files(str(video))
+    page.get_by_text("The 10 frames the model will see").first.wait_for(timeout=60_000)
+    page.screenshot(path=str(shots / "upload-filmstrip.png"))
+    page.get_by_role("button", name="Save as expert demonstration").click()
+    page.get_by_text("as an expert demonstration of").first.wait_for(timeout=60_000)
+    (up,) = studio.store.episodes(source="upload")
+    assert up.task == HELD_OUT and up.embodiment == "human" and up.role == "expert"
+
+    corrupt = tmp_path / "broken.mp4"
+    corrupt.write_bytes(b"\x00\x00\x00\x18ftypmp42" + os.urandom(4000))
+    page.locator("input[type=file]").first.set_input_files(str(corrupt))
+    page.get_by_text("Video rejected").first.wait_for(timeout=60_000)
+    page.screenshot(path=str(shots / "upload-rejected.png"))
+    assert len(studio.store.episodes(source="upload")) == 1, "a rejected file must write nothing"
+
+    page.get_by_role("tab", name="Data").click()
+    page.get_by_text("expert upload").first.wait_for(timeout=20_000)
+    tab.datasets.open(up.id)
+    page.get_by_text(up.id).first.wait_for(timeout=20_000)
+    page.screenshot(path=str(shots / "data.png"))
+
+
+def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
+    tab = _tab(studio)
+    train = tab.train
+    page.get_by_role("tab", name="Train").click()
+    for task, box in train._task_boxes.items():
+        box.value = task in TRAIN_TASKS
+    train.overrides.value = "; ".join(TINY)
+    train.steps.value = 4
+    page.get_by_role("button", name="Start training").click()
+    page.get_by_text("step 4/4").first.wait_for(timeout=240_000)
+    page.get_by_text("ended: finished").first.wait_for(timeout=60_000)
+    time.sleep(3.5)  # the runs table refreshes every few seconds
+    page.screenshot(path=str(shots / "train.png"))
+    job = train.job_id
+    run = studio.data_dir / "runs" / job
+    assert (run / "last.pt").is_file() and json.loads((run / "spec.json").read_text())["steps"] == 4
+    assert sorted(json.loads((run / "split.json").read_text())["train"]) == sorted(TRAIN_TASKS)
+    assert any(c.run_id == job for c in studio.runs.checkpoints())
+    assert train.loss_plot.data[0][-1] == 4 and np.isfinite(train.loss_plot.data[2]).all()
+
+
+def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
+    tab = _tab(studio)
+    im = tab.imitate
+    studio.runs.set_active("oracle")  # no trained policy ships yet: the execution ceiling, clearly labelled
+    page.get_by_role("tab", name="Imitate").click()
+    label = HELD_OUT + " (held-out)"
+    assert label in im.task.options
+    im.task.value = label
+    page.get_by_text("oracle — execution ceiling").first.wait_for(timeout=10_000)
+    page.get_by_role("button", name="Make a scripted demonstration").click()
+    page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
+    assert "scripted" in im.demo.value
+    im.seed.value = 2
+    page.get_by_role("button", name="Plan", exact=True).click()
+    page.get_by_text("Planned in").first.wait_for(timeout=90_000)
+    assert im.plan_wps.shape == (5, 4)
+    overlay = tab.view._overlays["plan"]
+    assert len(overlay) == 6, "a spline and 5 waypoint spheres"
+    page.screenshot(path=str(shots / "imitate-plan.png"))
+    page.get_by_role("button", name="Execute", exact=True).click()
+    _wait(lambda: im.rollout is not None and im.rollout.poses_seen > 10, 90, "live rollout poses")
+    _wait(
+        lambda: im.rollout.progress is not None and "waypoint" in im.rollout.progress.message,
+        60,
+        "a waypoint",
+    )
+    page.screenshot(path=str(shots / "imitate-executing.png"))
+    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=120_000)
+    page.screenshot(path=str(shots / "imitate-outcome.png"))
+    result = _wait(lambda: im.rollout.result, 30, "the rollout's result")
+    assert result["success"] is True, result  # the oracle's plan on a held-out task succeeds
+    assert im.rollout.plans and np.allclose(im.rollout.plans[0], im.plan_wps), (
+        "execution follows the shown plan"
+    )
+    row = [r for r in studio.store.catalog.rollouts(task=HELD_OUT) if r.id == result["rollout_id"]]
+    assert row and row[0].checkpoint_id is None
+
+
+def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
+    tab = _tab(studio)
+    ins = tab.inspector
+    page.get_by_role("tab", name="Inspect").click()
+    ins.outcome.value = "failures"
+    first = _wait(
+        lambda: ins.rollout.options[0] if "✘" in ins.rollout.options[0] else None, 10, "failures listed"
+    )
+    failed = [r for r in studio.store.catalog.rollouts(success=False)]
+    assert first.startswith(failed[0].id) and failed[0].failure_stage in first
+    page.get_by_role("button", name="Open", exact=True).click()
+    page.get_by_text("Stages:").first.wait_for(timeout=60_000)
+    assert tab.mode == "replay"
+    steps = ins.replay.num_steps
+    ins.timeline.slider.value = steps // 2
+    page.get_by_text(f"Step {steps // 2} of").first.wait_for(timeout=20_000)
+    page.screenshot(path=str(shots / "inspect.png"))
+    mid = ins.replay.poses_at(steps // 2)
+    assert not np.allclose(mid, ins.replay.poses_at(0)), "the scene moves along the timeline"
+    assert "plan" in tab.view._overlays
+
+
+def test_workers_panel_lists_the_embedded_workers(studio, page, shots):
+    tab = _tab(studio)
+    page.get_by_role("tab", name="Workers").click()
+    page.get_by_text("1 teleop session").first.wait_for(timeout=20_000)
+    text = tab.workers.describe()
+    assert "| sim |" in text and "| train |" in text and "rollout" in text
+    page.screenshot(path=str(shots / "workers.png"))

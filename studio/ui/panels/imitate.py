@@ -1,0 +1,354 @@
+"""Imitate: one-shot imitation of a demonstration on a (held-out) task, planned and executed on a sim worker.
+
+*Plan* runs a ``plan`` job: the scene of (task, seed) is shown, then the expert frames the model saw, the
+agent's first frame, the predicted latent trajectory decoded to images (when the checkpoint has a
+decoder) and the 5 waypoints as spheres joined by a spline (green: gripper open, red: closed).
+*Execute* runs a ``rollout`` job paced at real time: its poses stream into the scene, the waypoint being
+executed is enlarged, every re-plan's waypoints replace the drawn ones, and the outcome is shown.
+Re-planning continues the same episode inside the rollout (``Re-plans`` allowed); *Re-plan* after a
+failure runs the same episode again with one more re-plan (seeded, so the first attempts repeat exactly
+and the new plan continues from where they failed). Every tab sees a running rollout and can watch it.
+
+Without a trained checkpoint the oracle planner is used, labelled as the execution ceiling.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from studio.backend.plan_job import expert_indices
+from studio.data.splits import load_split
+from studio.sim.tasks import list_tasks
+from studio.ui.images import filmstrip, thumbnail
+
+HINT = """Choose a **task** (held-out ones were never trained on), a **demonstration** of it and a scene
+**seed**. **Plan** shows what the model sees and predicts; **Execute** runs it on the Franka Panda
+live in the scene. Record demonstrations in *Teleop*, upload them in *Upload*, or make a scripted one here."""
+
+SCENES = ("pick_place", "push", "metaworld")
+HELD_OUT = " (held-out)"
+_WAYPOINT = re.compile(r"waypoint (\d+) of (\d+)")
+
+
+def task_labels() -> dict[str, str]:
+    """Label shown in the dropdown -> task name; held-out (test) tasks first and marked."""
+    labels: dict[str, str] = {}
+    for scene in SCENES:
+        tasks = list_tasks(scene)
+        try:
+            held = set(load_split(scene).test)
+        except ValueError:
+            held = set()
+        for t in sorted(tasks, key=lambda t: t not in held):
+            labels[t + (HELD_OUT if t in held else "")] = t
+    return labels
+
+
+class ImitatePanel:
+    """The *Imitate* tab."""
+
+    def __init__(self, tab):
+        self.tab = tab
+        self.app = tab.app
+        self.labels = task_labels()
+        self.plan_job = None
+        self.expert_job = None
+        self.rollout = None
+        self.plan_wps: np.ndarray | None = None
+        self._listener = None
+        self._rollout_token = 0
+        self._demo_version = -1
+        self._shown: dict[str, object] = {}
+        gui = tab.client.gui
+        gui.add_markdown(HINT)
+        first = next(iter(self.labels))
+        self.task = gui.add_dropdown("Task", tuple(self.labels), initial_value=first)
+        self.demo = gui.add_dropdown("Demonstration", ("(none)",))
+        self.scripted = gui.add_button("Make a scripted demonstration", icon="robot",
+                                       hint="records the scene's scripted Sawyer expert (seed = Seed + 1000)")  # fmt: skip
+        self.seed = gui.add_number(
+            "Seed", initial_value=0, min=0, step=1, hint="the scene the Panda starts in"
+        )
+        self.replans = gui.add_number("Re-plans", initial_value=1, min=0, max=5, step=1,
+                                      hint="re-plans allowed within the episode after a failed attempt")  # fmt: skip
+        self.policy = gui.add_markdown("")
+        buttons = gui.add_button_group("Run", ("Plan", "Execute", "Re-plan", "Cancel"))
+        self.buttons = buttons
+        self.watch = gui.add_button("Watch the running rollout", visible=False)
+        self.status = gui.add_markdown("")
+        self.outcome = gui.add_markdown("")
+        self.expert_strip = gui.add_image(np.full((20, 100, 3), 255, np.uint8), label="Expert frames the model sees",
+                                          visible=False)  # fmt: skip
+        self.agent_image = gui.add_image(np.full((20, 100, 3), 255, np.uint8), label="Agent's first frame",
+                                         visible=False)  # fmt: skip
+        self.latent_strip = gui.add_image(np.full((20, 100, 3), 255, np.uint8),
+                                          label="Predicted latent trajectory (decoded)", visible=False)  # fmt: skip
+        self.latent_note = gui.add_markdown("")
+        self.task.on_update(lambda e: self._fill_demos())
+        self.scripted.on_click(lambda _: tab.run(self.make_scripted, "making a scripted demonstration"))
+        buttons.on_click(self._on_button)
+        self.watch.on_click(lambda _: tab.run(self._watch_other, "watching the rollout"))
+
+    # ------------------------------------------------------------------ choices
+    @property
+    def task_name(self) -> str:
+        return self.labels[self.task.value]
+
+    def _fill_demos(self) -> None:
+        metas = self.app.store.episodes(task=self.task_name, role="expert", newest_first=True, limit=100)
+        options = tuple(f"{m.id} · {m.source} · {m.embodiment}" for m in metas) or ("(none)",)
+        if self.demo.options != options:
+            keep = self.demo.value
+            self.demo.options = options
+            if keep in options:
+                self.demo.value = keep
+
+    def demo_id(self) -> str:
+        eid = self.demo.value.split(" ")[0]
+        if eid == "(none)":
+            raise ValueError(
+                f"no demonstration of {self.task_name} yet: record, upload or make a scripted one"
+            )
+        return eid
+
+    def _on_button(self, event) -> None:
+        action = event.target.value
+        if action == "Plan":
+            self.tab.run(self.plan, "planning")
+        elif action == "Execute":
+            self.tab.run(self.execute, "starting the rollout")
+        elif action == "Re-plan":
+            self.tab.run(self.replan, "re-planning")
+        elif action == "Cancel":
+            self.tab.run(self.cancel, "cancelling")
+
+    # ------------------------------------------------------------------ actions
+    def make_scripted(self):
+        task = self.task_name
+        self.expert_job = self.app.jobs.submit(
+            "expert",
+            {"task": task, "seed": int(self.seed.value) + 1000},
+            started_by=self.tab.client.client_id,
+        )
+        self.status.content = f"Recording a scripted demonstration of **{task}**…"
+        return self.expert_job
+
+    def _show_scene(self, task: str, seed: int, note: str) -> int:
+        scene = task.split("/", 1)[0]
+        geometry, poses = self.app.geometry(scene, "panda" if scene != "metaworld" else "sawyer", task, seed)
+        token = self.tab.set_mode("imitate", note)
+        self.tab.view.load(geometry, ("local", scene, task if scene == "metaworld" else ""))
+        self.tab.push_poses(token, poses)
+        return token
+
+    def _robot(self, task: str) -> str:
+        return "sawyer" if task.startswith("metaworld/") else "panda"
+
+    def plan(self):
+        task, seed, demo = self.task_name, int(self.seed.value), self.demo_id()
+        ck = self.app.runs.active()
+        self._show_scene(task, seed, f"Plan for **{task}**, seed {seed}.")
+        self.tab.view.clear_overlay("plan")
+        self.plan_job = self.app.jobs.submit(
+            "plan", {"checkpoint": ck.path, "expert_episode_id": demo, "task": task, "seed": seed,
+                     "robot": self._robot(task)}, started_by=self.tab.client.client_id,
+        )  # fmt: skip
+        self.status.content = f"Planning with {'the **oracle**' if ck.is_oracle else f'`{ck.id}`'}…"
+        self.outcome.content = ""
+        return self.plan_job
+
+    def _show_plan(self, tracked) -> None:
+        result = tracked.result or {}
+        data = np.load(self.app.data_dir / result["path"])
+        self.plan_wps = data["waypoints_world"]
+        self.tab.view.show_waypoints("plan", self.plan_wps)
+        frames = self.app.store.load_frames(tracked.spec["expert_episode_id"])
+        idx = data["expert_indices"] if "expert_indices" in data else expert_indices(len(frames), 10)
+        self.expert_strip.image = filmstrip(
+            frames[idx], cols=5, height=60, labels=[str(i + 1) for i in range(len(idx))]
+        )
+        self.expert_strip.visible = True
+        self.agent_image.image = thumbnail(data["agent_frame"], 150)
+        self.agent_image.visible = True
+        self.tab.view.set_camera_image(data["agent_frame"])
+        if "latent_images" in data:
+            lat = data["latent_images"]
+            self.latent_strip.image = filmstrip(lat, cols=min(5, len(lat)), height=60,
+                                                labels=[f"t{i + 2}" for i in range(len(lat))])  # fmt: skip
+            self.latent_strip.visible = True
+            self.latent_note.content = ""
+        else:
+            self.latent_strip.visible = False
+            why = (
+                "the oracle has no latent states"
+                if tracked.spec["checkpoint"] == "oracle"
+                else "this checkpoint has no latent decoder (`studio train-decoder`)"
+            )
+            self.latent_note.content = f"No decoded latent images: {why}."
+        grip = " ".join("●" if g > 0.5 else "○" for g in self.plan_wps[:, 3])
+        self.status.content = (
+            f"Planned in {result.get('planning_time_s', 0.0) * 1e3:.0f} ms. Waypoints 1–5, gripper {grip} "
+            "(● closed). **Execute** to run it."
+        )
+
+    def execute(self):
+        task, seed, demo = self.task_name, int(self.seed.value), self.demo_id()
+        ck = self.app.runs.active()
+        replans = int(self.replans.value)
+        spec = {"checkpoint": ck.path, "checkpoint_id": ck.id, "expert_episode_id": demo, "task": task,
+                "seed": seed, "replans": replans, "robot": self._robot(task), "speed": 1.0}  # fmt: skip
+        tracked = self.app.jobs.submit("rollout", spec, started_by=self.tab.client.client_id)
+        self.outcome.content = ""
+        self.attach(tracked)
+        return tracked
+
+    def replan(self):
+        if self.rollout is None or not self.rollout.terminal:
+            raise ValueError("re-planning continues a finished, failed rollout: Execute first")
+        self.replans.value = int(self.rollout.spec.get("replans", 0)) + 1
+        return self.execute()
+
+    def cancel(self) -> None:
+        for tracked in (self.rollout, self.plan_job, self.expert_job):
+            if tracked is not None and not tracked.terminal:
+                self.app.jobs.cancel(tracked.job)
+
+    def attach(self, tracked) -> None:
+        """Show a rollout job live in this tab's scene."""
+        self.detach()
+        spec = tracked.spec
+        self.rollout = tracked
+        token = self._show_scene(spec["task"], int(spec["seed"]),
+                                 f"Rollout `{tracked.job}` — **{spec['task']}**, seed {spec['seed']} (live).")  # fmt: skip
+        self._rollout_token = token
+
+        def on_frame(frame) -> None:
+            self.tab.push_poses(token, frame.poses_array())
+
+        self._listener = on_frame
+        tracked.add_pose_listener(on_frame)
+        if (
+            self.plan_wps is not None
+            and self.plan_job is not None
+            and self.plan_job.spec.get("task") == spec["task"]
+        ):
+            self.tab.view.show_waypoints("plan", self.plan_wps)
+        self.status.content = "Starting the rollout…"
+
+    def detach(self) -> None:
+        if self.rollout is not None and self._listener is not None:
+            self.rollout.remove_pose_listener(self._listener)
+        self._listener = None
+
+    def _watch_other(self) -> None:
+        for s in reversed(self.app.hub.jobs.jobs()):
+            if s.kind == "rollout" and not s.terminal and (self.rollout is None or s.job != self.rollout.job):
+                self.attach(self.app.jobs.follow(s.job, "rollout", s.spec))
+                return
+
+    # ------------------------------------------------------------------ refresh
+    def refresh(self) -> None:
+        if self.app.dataset_version != self._demo_version:
+            self._demo_version = self.app.dataset_version
+            self._fill_demos()
+        ck = self.app.runs.active()
+        text = (
+            "Policy: **oracle — execution ceiling** (plans from the simulator's true state; no trained "
+            "checkpoint is active)"
+            if ck.is_oracle
+            else f"Policy: `{ck.id}`"
+        )
+        if self._shown.get("policy") != text:
+            self._shown["policy"] = text
+            self.policy.content = text
+        self._refresh_expert_job()
+        self._refresh_plan_job()
+        self._refresh_rollout()
+        others = any(
+            s.kind == "rollout" and not s.terminal and (self.rollout is None or s.job != self.rollout.job)
+            for s in self.app.hub.jobs.jobs()
+        )
+        if self.watch.visible != others:
+            self.watch.visible = others
+
+    def _refresh_expert_job(self) -> None:
+        job = self.expert_job
+        if job is None or not job.terminal or job is self._shown.get("expert_done"):
+            return
+        if job.state == "succeeded" and job.result is None:
+            return
+        self._shown["expert_done"] = job
+        if job.state == "succeeded":
+            eid = job.result["episode_id"]
+            self._fill_demos()
+            match = [o for o in self.demo.options if o.startswith(eid)]
+            if match:
+                self.demo.value = match[0]
+            self.status.content = f"Scripted demonstration `{eid}` stored and selected."
+            self.app.dataset_changed()
+        else:
+            self.status.content = f"Scripted demonstration failed: {job.status.reason}"
+            self.tab.notify("No scripted demonstration", job.status.reason, error=True)
+
+    def _refresh_plan_job(self) -> None:
+        job = self.plan_job
+        if job is None or job is self._shown.get("plan_done"):
+            return
+        if not job.terminal:
+            if job.progress is not None and job.progress.message:
+                self.status.content = f"Plan: {job.progress.message}…"
+            elif job.status is not None and job.status.state == "queued":
+                self.status.content = f"Plan queued: {job.status.reason}"
+            return
+        if job.state == "succeeded" and job.result is None:
+            return
+        self._shown["plan_done"] = job
+        if job.state == "succeeded":
+            self.tab.run(lambda: self._show_plan(job), "showing the plan")
+        else:
+            self.status.content = f"Planning {job.state}: {job.status.reason}"
+            self.tab.notify("Planning failed", job.status.reason, error=True)
+
+    def _refresh_rollout(self) -> None:
+        job = self.rollout
+        if job is None:
+            return
+        p = job.progress
+        msg_text = p.message if p is not None else ""
+        n_plans = len(job.plans)
+        key = (job.state, msg_text, n_plans, job.result is not None)
+        if self._shown.get("rollout") == key:
+            return
+        self._shown["rollout"] = key
+        if n_plans:
+            current = None
+            m = _WAYPOINT.match(msg_text)
+            if m:
+                current = int(m.group(1)) - 1
+            if self.tab.token == self._rollout_token:
+                self.tab.view.show_waypoints("plan", job.plans[-1], current=current)
+        if not job.terminal:
+            where = f"plan {n_plans}" if n_plans else "planning"
+            self.status.content = f"Rollout `{job.job}` ({where}): **{msg_text or job.state}**"
+            return
+        if job.state == "succeeded" and job.result is None:
+            return
+        self.detach()
+        if job.state != "succeeded":
+            self.outcome.content = f"### ✘ Rollout {job.state}\n{job.status.reason}"
+            return
+        r = job.result
+        if r["success"]:
+            self.outcome.content = f"### ✔ Success\n{r['replans']} re-plan(s); rollout `{r['rollout_id']}`."
+        else:
+            self.outcome.content = (
+                f"### ✘ Failed at {r['failure_stage']}\nafter {r['replans']} re-plan(s); rollout "
+                f"`{r['rollout_id']}` (open it in *Inspect*). **Re-plan** tries once more in the same episode."
+            )
+        self.status.content = f"Rollout `{job.job}` finished: {'success' if r['success'] else 'failure'}."
+        self.app.dataset_changed()
+
+    def close(self) -> None:
+        self.detach()

@@ -1,0 +1,187 @@
+"""Rollout inspector: stored rollouts filtered by task, checkpoint and outcome (failures first, with the stage
+they failed at); one replayed with a timeline — scene poses, the camera frame at that moment, the active
+plan's waypoints, and the predicted latent image beside the actual frame when the checkpoint has a decoder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from studio.ui.images import side_by_side, thumbnail
+from studio.ui.timeline import Timeline
+
+HINT = """Every rollout (from *Imitate* or `studio eval`) is stored. Filter them, **Open** one and drag the
+timeline: the scene, the camera frame and the plan in force at that moment follow. Failures come first,
+with the stage they failed at."""
+
+ALL = "(all)"
+OUTCOMES = (ALL, "failures", "successes")
+
+
+def rollout_label(r) -> str:
+    mark = "✔ success" if r.success else f"✘ {r.failure_stage or 'failed'}"
+    return f"{r.id} · {mark} · {r.task} · seed {r.seed} · {r.checkpoint_id or 'oracle'}"
+
+
+class InspectorPanel:
+    """The *Inspect* tab."""
+
+    def __init__(self, tab):
+        self.tab = tab
+        self.app = tab.app
+        self._version = -1
+        self.record = None
+        self.replay = None
+        self.frames: np.ndarray | None = None
+        self.plans: dict[str, np.ndarray] = {}
+        self.latents: dict[int, np.ndarray] = {}
+        self._token = 0
+        gui = tab.client.gui
+        gui.add_markdown(HINT)
+        self.task = gui.add_dropdown("Task", (ALL,), initial_value=ALL)
+        self.checkpoint = gui.add_dropdown("Checkpoint", (ALL,), initial_value=ALL)
+        self.outcome = gui.add_dropdown("Outcome", OUTCOMES, initial_value=ALL)
+        self.rollout = gui.add_dropdown("Rollout", ("(none)",))
+        self.open_button = gui.add_button("Open", icon="timeline")
+        self.info = gui.add_markdown("")
+        self.image = gui.add_image(np.full((120, 160, 3), 255, np.uint8), label="Camera", visible=False)
+        self.timeline = Timeline(gui, "Step", self._show_step, fps=30.0)
+        self.plan_info = gui.add_markdown("")
+        for dd in (self.task, self.checkpoint, self.outcome):
+            dd.on_update(lambda e: self._fill_rollouts())
+        self.open_button.on_click(lambda _: tab.run(self.open_selected, "opening the rollout"))
+
+    # ------------------------------------------------------------------ listing
+    def rollouts(self):
+        cat = self.app.store.catalog
+        task = None if self.task.value == ALL else self.task.value
+        success = {ALL: None, "failures": False, "successes": True}[self.outcome.value]
+        rows = cat.rollouts(task=task, success=success, limit=500)
+        ck = self.checkpoint.value
+        if ck != ALL:
+            rows = [r for r in rows if (r.checkpoint_id or "oracle") == ck]
+        return sorted(rows, key=lambda r: (r.success, -r.created))
+
+    def _fill_rollouts(self) -> None:
+        options = tuple(rollout_label(r) for r in self.rollouts()) or ("(none)",)
+        if self.rollout.options != options:
+            self.rollout.options = options
+
+    def refresh(self) -> None:
+        if self.app.dataset_version == self._version:
+            return
+        self._version = self.app.dataset_version
+        rows = self.app.store.catalog.rollouts(limit=2000)
+        tasks = (ALL, *sorted({r.task for r in rows}))
+        cks = (ALL, *sorted({r.checkpoint_id or "oracle" for r in rows}))
+        if self.task.options != tasks:
+            self.task.options = tasks
+        if self.checkpoint.options != cks:
+            self.checkpoint.options = cks
+        self._fill_rollouts()
+
+    # ------------------------------------------------------------------ one rollout
+    def open_selected(self) -> None:
+        rid = self.rollout.value.split(" ")[0]
+        if rid == "(none)":
+            self.tab.notify("No rollout", "Choose a rollout to open.", error=True)
+            return
+        self.open(rid)
+
+    def open(self, rollout_id: str) -> None:
+        from studio.backend.plan_job import decode_latents
+        from studio.backend.replay import EpisodeReplay
+
+        store = self.app.store
+        found = [r for r in store.catalog.rollouts(limit=100000) if r.id == rollout_id]
+        if not found:
+            raise KeyError(f"no rollout {rollout_id}")
+        r = found[0]
+        if r.episode_id is None:
+            raise ValueError(f"rollout {rollout_id} was stored without its recording (eval --no-keep)")
+        self.record = r
+        self.replay = EpisodeReplay(store, r.episode_id)
+        self.frames = store.load_frames(r.episode_id)
+        self.plans = {}
+        self.latents = {}
+        if r.path and (Path(r.path) / "plans.npz").is_file():
+            with np.load(Path(r.path) / "plans.npz") as data:
+                self.plans = {k: data[k] for k in data.files}
+        events = []
+        if r.path and (Path(r.path) / "events.json").is_file():
+            events = json.loads((Path(r.path) / "events.json").read_text())
+        checkpoint = (r.extra or {}).get("checkpoint")
+        note = ""
+        if checkpoint and checkpoint != "oracle":
+            for i in range(self.n_plans):
+                pooled = self.plans.get(f"plan{i}_pooled_states")
+                if pooled is not None and Path(checkpoint).is_file():
+                    images = decode_latents(checkpoint, pooled)
+                    if images is not None:
+                        self.latents[i] = images
+            if not self.latents:
+                note = " No decoded latent images (no latent decoder next to the checkpoint)."
+        elif not checkpoint or checkpoint == "oracle":
+            note = " The oracle has no latent predictions."
+        meta = self.replay.meta
+        self._token = self.tab.set_mode("replay", f"Replaying rollout `{r.id}` ({r.task}).")
+        view = self.tab.view
+        view.load(
+            self.replay.geometry,
+            ("replay", meta.scene, meta.embodiment, meta.task if meta.scene == "metaworld" else ""),
+        )
+        view.set_camera(store.load_camera(r.episode_id).to_dict())
+        view.show_path("path", self.replay.ee_path(), self.replay.arrays.get("gripper_cmd"))
+        stages = (r.extra or {}).get("stages", {})
+        reached = ", ".join(f"{k} {'✔' if v else '✘'}" for k, v in stages.items())
+        waypoints = sum(1 for e in events if e and e[0] == "waypoint")
+        self.info.content = (
+            f"**{'✔ success' if r.success else '✘ failed at ' + str(r.failure_stage)}** — {r.task}, seed {r.seed}, "
+            f"{r.checkpoint_id or 'oracle'}; {self.n_plans} plan(s), {r.replans} re-plan(s), {waypoints} waypoints "
+            f"executed, {r.num_steps} steps. Stages: {reached or '—'}.{note}"
+        )
+        self.image.visible = True
+        self.timeline.reset(self.replay.num_steps, fps=min(30.0, 1.0 / max(meta.control_dt or 0.02, 1e-3)))
+
+    @property
+    def n_plans(self) -> int:
+        return sum(1 for k in self.plans if k.endswith("_waypoints_world"))
+
+    def plan_at(self, step: int) -> int | None:
+        starts = self.plans.get("plan_start_ticks")
+        if starts is None or len(starts) == 0:
+            return None
+        return int(max(0, np.searchsorted(np.asarray(starts), step, side="right") - 1))
+
+    def _show_step(self, step: int) -> None:
+        if self.replay is None or self.frames is None:
+            return
+        if self.tab.token == self._token:
+            self.tab.push_poses(self._token, self.replay.poses_at(step))
+        fsteps = self.replay.frame_steps
+        fi = int(np.clip(np.searchsorted(fsteps, step, side="right") - 1, 0, len(self.frames) - 1))
+        actual = self.frames[fi]
+        k = self.plan_at(step)
+        image = thumbnail(actual, 150)
+        text = f"Step {step} of {self.replay.num_steps - 1}; camera frame {fi + 1} of {len(self.frames)}."
+        if k is not None:
+            wps = self.plans.get(f"plan{k}_waypoints_world")
+            if wps is not None and self.tab.token == self._token:
+                self.tab.view.show_waypoints("plan", wps)
+            starts = np.asarray(self.plans["plan_start_ticks"])
+            end = int(starts[k + 1]) if k + 1 < len(starts) else self.replay.num_steps - 1
+            text += f" Plan {k + 1} of {len(starts)} (from step {int(starts[k])})."
+            lat = self.latents.get(k)
+            if lat is not None and len(lat):
+                frac = (step - int(starts[k])) / max(1, end - int(starts[k]))
+                j = int(np.clip(round(frac * (len(lat) - 1)), 0, len(lat) - 1))
+                image = side_by_side(actual, lat[j], height=150)
+                text += f" Left: actual frame; right: predicted latent state {j + 1} of {len(lat)}."
+        self.image.image = image
+        self.tab.view.set_camera_image(actual)
+        self.plan_info.content = text
+
+    def close(self) -> None:
+        self.timeline.close()

@@ -1,0 +1,379 @@
+"""Teleop & record: one teleop session per tab on a sim worker, driven by a gizmo, recorded into the store.
+
+The session is a :class:`~studio.backend.teleop_client.TeleopClient`: the gizmo's drags become
+end-effector targets (latest wins; IK runs on the worker), the worker streams body poses back at its
+control rate and camera images at a few hertz. Recording, stopping (with the user's success verdict,
+pre-filled from the task's predicate) and discarding are requests to the session; the worker stores the
+episode and reports where it went.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from studio.backend import bus
+from studio.backend import messages as msg
+from studio.backend.teleop_client import TeleopClient, choose_sim_worker
+from studio.sim.tasks import list_tasks
+
+HINTS = """**Drag the gizmo** at the gripper to move the arm (IK runs on the sim worker);
+*Open* / *Close* the gripper. **Record** resets the scene to its seed and starts an episode;
+**Stop & save** stores it (success is pre-filled by the task's check — override it if you disagree);
+**Discard** drops it. Sawyer recordings are expert demonstrations, Panda recordings agent trajectories."""
+
+SCENES = ("pick_place", "push", "metaworld")
+PREVIEW_HZ = 5.0
+PREVIEW_SIZE = (120, 160)
+
+
+def scene_tasks(scene: str) -> list[str]:
+    return list_tasks(scene)
+
+
+class TeleopPanel:
+    """The *Teleop* tab of one browser tab."""
+
+    def __init__(self, tab):
+        self.tab = tab
+        self.app = tab.app
+        self.client: TeleopClient | None = None
+        self.info: msg.SessionInfo | None = None
+        self.gizmo = None
+        self._geometry_key: tuple | None = None
+        self._gripper = 0.0
+        self._pending: dict[int, float] = {}
+        self._pending_lock = threading.Lock()
+        self._success_touched = False
+        self._recording = False
+        self._closed = False
+        self._token = 0
+        self.drags = 0
+        gui = tab.client.gui
+        gui.add_markdown(HINTS)
+        scenes = tuple(s for s in SCENES if scene_tasks(s))
+        self.scene = gui.add_dropdown("Scene", scenes, initial_value=scenes[0])
+        self.robot = gui.add_dropdown("Robot", ("sawyer", "panda"), initial_value="sawyer",
+                                      hint="Sawyer: expert demonstrations; Franka Panda: agent trajectories")  # fmt: skip
+        tasks = scene_tasks(scenes[0])
+        self.task = gui.add_dropdown("Task", tuple(tasks), initial_value=tasks[0])
+        self.seed = gui.add_number(
+            "Seed", initial_value=0, min=0, step=1, hint="same seed, same initial scene"
+        )
+        self.scene_buttons = gui.add_button_group("Scene state", ("New seed", "Reset"))
+        self.grip = gui.add_button_group("Gripper", ("Open", "Close"))
+        self.rec_status = gui.add_markdown("")
+        self.record = gui.add_button("Record", color="red", icon="player-record",
+                                     hint="reset the scene to its seed and start recording")  # fmt: skip
+        self.stop = gui.add_button("Stop & save", icon="player-stop", disabled=True)
+        self.discard = gui.add_button("Discard", icon="x", disabled=True)
+        self.success = gui.add_checkbox("Success", initial_value=False,
+                                        hint="pre-filled by the task's success check; tick or untick to override")  # fmt: skip
+        self.preview = gui.add_image(np.zeros((*PREVIEW_SIZE, 3), np.uint8), label="External camera (live)")
+        self.status = gui.add_markdown("Waiting for a sim worker…")
+        with gui.add_folder("Episodes of this task", expand_by_default=False):
+            self.episode_list = gui.add_dropdown("Episode", ("(none)",))
+            self.delete_selected = gui.add_button("Delete selected episode…", icon="trash")
+            self.delete_last = gui.add_button("Delete my last recording…", icon="trash")
+        self._list_version = -1
+        self._list_task = ""
+
+        self.scene.on_update(self._on_scene)
+        self.robot.on_update(lambda e: e.client and tab.run(self.open, "opening the session"))
+        self.task.on_update(lambda e: e.client and tab.run(self.reset, "resetting the scene"))
+        self.seed.on_update(lambda e: e.client and tab.run(self.reset, "resetting the scene"))
+        self.scene_buttons.on_click(self._on_scene_button)
+        self.grip.on_click(lambda e: self.set_gripper(1.0 if e.target.value == "Close" else 0.0))
+        self.record.on_click(lambda _: tab.run(self.start_recording, "starting the recording"))
+        self.stop.on_click(lambda _: tab.run(self.stop_and_save, "saving the episode"))
+        self.discard.on_click(lambda _: tab.run(self.discard_recording, "discarding the recording"))
+        self.success.on_update(self._on_success)
+        self.delete_selected.on_click(lambda _: self._confirm_delete(selected=True))
+        self.delete_last.on_click(lambda _: self._confirm_delete(selected=False))
+        self._preview_thread = threading.Thread(target=self._preview_loop, daemon=True, name="teleop-preview")
+
+    # ------------------------------------------------------------------ session
+    def start(self) -> None:
+        self._preview_thread.start()
+        self.tab.run(self.open, "opening the teleop session")
+
+    def _wait_worker(self) -> str:
+        directory = self.app.hub.directory
+        deadline = time.monotonic() + 90.0
+        while True:
+            try:
+                return choose_sim_worker(directory)
+            except bus.BusError:
+                if time.monotonic() > deadline or self._closed:
+                    raise
+                self.status.content = "Waiting for a sim worker to join (`studio worker sim`)…"
+                directory.wait_for(lambda ws: any(w.kind == "sim" and w.status for w in ws), 1.0)
+
+    def open(self) -> None:
+        """(Re-)open the session with the chosen scene, robot, task and seed."""
+        if self.client is None:
+            worker = self._wait_worker()
+            self.client = TeleopClient(self.app.hub.session, worker, on_pose=self._on_pose, timeout=10.0)
+        scene, robot, task, seed = self.scene.value, self.robot.value, self.task.value, int(self.seed.value)
+        self.status.content = f"Opening **{task}** with the **{robot}** on `{self.client.worker}`…"
+        self.info = self.client.open(scene, robot, task, seed)
+        self._recording = False
+        self._set_recording_ui(False)
+        self.client.stream_frames(PREVIEW_HZ, quality=70)
+        self.show_live()
+        self.status.content = f"**{task}** with the **{robot}**, seed {seed} — ready. Drag the gizmo."
+
+    def reset(self) -> None:
+        if self.client is None or self.info is None:
+            return self.open()
+        task, seed = self.task.value, int(self.seed.value)
+        if self._recording:
+            self.tab.notify("Recording discarded", "Resetting the scene discarded the unsaved recording.")
+        self.info = self.client.reset(task, seed)
+        self._recording = False
+        self._set_recording_ui(False)
+        self.show_live()
+        self.status.content = f"**{task}** with the **{self.info.robot}**, seed {seed} — ready."
+
+    def show_live(self) -> None:
+        """Show the live session in the scene (fetching its geometry when the model changed)."""
+        if self.client is None or self.info is None:
+            return
+        info = self.info
+        key = ("teleop", info.scene, info.robot, info.body_names)
+        if key != self._geometry_key or self.tab.view.key != key:
+            self.tab.view.load(self.client.geometry(), key)
+            self._geometry_key = key
+        self._token = self.tab.set_mode("teleop")
+        self.tab.view.set_camera(info.camera)
+        _, version = self.client.poses.get()
+        frame, _ = self.client.poses.wait_newer(version, 1.0)  # a pose of the scene as it is now
+        if frame is not None:
+            self.tab.push_poses(self._token, frame.poses_array())
+        self._place_gizmo(np.asarray(frame.ee_pos) if frame is not None else None)
+
+    def _place_gizmo(self, ee: np.ndarray | None) -> None:
+        if ee is None:
+            return
+        if self.gizmo is None:
+            self.gizmo = self.tab.client.scene.add_transform_controls(
+                "/gizmo", scale=0.12, disable_rotations=True, depth_test=False, line_width=3.0, position=ee
+            )
+            self.gizmo.on_update(self._on_gizmo_event)
+        else:
+            self.gizmo.position = ee
+        self.gizmo.visible = True
+
+    # ------------------------------------------------------------------ commands
+    def _on_gizmo_event(self, event) -> None:
+        if event.client is not None:
+            self.drags += 1
+        self.move_to(np.asarray(event.target.position, dtype=np.float64))
+
+    def move_to(self, position: np.ndarray) -> int | None:
+        """Send the end-effector target (the gizmo's callback; tests and the benchmark call it the same way)."""
+        if self.client is None or self.info is None:
+            return None
+        received = time.perf_counter()
+        if self.tab.mode != "teleop":
+            self.tab.run(self.show_live, "showing the teleop scene")
+        seq = self.client.set_target(position, self._gripper)
+        with self._pending_lock:
+            self._pending[seq] = received
+            if len(self._pending) > 1000:
+                for old in sorted(self._pending)[:500]:
+                    del self._pending[old]
+        return seq
+
+    def set_gripper(self, closed: float) -> None:
+        self._gripper = float(closed)
+        if self.client is None:
+            return
+        frame = self.client.latest_pose()
+        target = (
+            np.asarray(self.gizmo.position)
+            if self.gizmo is not None
+            else np.asarray(frame.ee_pos)
+            if frame
+            else None
+        )
+        if target is not None:
+            self.move_to(target)
+
+    def _on_pose(self, frame: msg.PoseFrame) -> None:
+        """Every pose frame of the session (Zenoh thread): to the scene, and latency bookkeeping."""
+        ack = None
+        if frame.ack_seq >= 0:
+            now = time.perf_counter()
+            with self._pending_lock:
+                done = [s for s in self._pending if s <= frame.ack_seq]
+                sent = [self._pending.pop(s) for s in done]
+            for t in sent:
+                self.app.stats.add("ack", 1e3 * (now - t))
+            if sent:
+                ack = (frame.ack_seq, min(sent))
+        if self.tab.mode == "teleop":
+            self.tab.push_poses(self._token, frame.poses_array(), ack)
+
+    def _preview_loop(self) -> None:
+        version = 0
+        while not self._closed:
+            client = self.client
+            if client is None:
+                time.sleep(0.2)
+                continue
+            frame, version = client.frames.wait_newer(version, 0.5)
+            if frame is None or self._closed:
+                continue
+            try:
+                image = frame.to_array()
+            except msg.ProtocolError:
+                continue
+            small = image[
+                :: max(1, image.shape[0] // PREVIEW_SIZE[0]), :: max(1, image.shape[1] // PREVIEW_SIZE[1])
+            ]
+            self.preview.image = small
+            if self.tab.mode == "teleop":
+                self.tab.view.set_camera_image(image)
+            time.sleep(1.0 / PREVIEW_HZ / 2)
+
+    # ------------------------------------------------------------------ recording
+    def _set_recording_ui(self, recording: bool) -> None:
+        self.record.disabled = recording
+        self.stop.disabled = not recording
+        self.discard.disabled = not recording
+        self.rec_status.content = "### ● REC — recording" if recording else ""
+
+    def start_recording(self) -> None:
+        if self.client is None:
+            raise RuntimeError("no teleop session yet")
+        self.show_live()
+        self.client.start_recording(reset=True)
+        self._recording = True
+        self._success_touched = False
+        self.success.value = False
+        frame = self.client.latest_pose()
+        self._place_gizmo(np.asarray(frame.ee_pos) if frame is not None else None)
+        self._set_recording_ui(True)
+        self.status.content = "Recording — move the arm, then **Stop & save** or **Discard**."
+
+    def stop_and_save(self) -> None:
+        if self.client is None or not self._recording:
+            return
+        verdict = bool(self.success.value)
+        self.status.content = "Stopping — rendering and storing the episode…"
+        try:
+            outcome = self.client.stop_recording(wait=True, success=verdict)
+        except bus.RemoteError as e:
+            self.status.content = f"Still recording: {e.message}"
+            self.tab.notify("Not saved yet", e.message, error=True)
+            return
+        self._recording = False
+        self._set_recording_ui(False)
+        if isinstance(outcome, msg.EpisodeSaved):
+            self.status.content = (
+                f"Saved `{outcome.episode}` — {outcome.steps} steps, {outcome.frames} frames, "
+                f"success={outcome.success}, {outcome.role}."
+            )
+            self.tab.notify("Episode saved", f"{outcome.task}: {outcome.episode}")
+            self.app.dataset_changed()
+        else:
+            self.status.content = f"**Not stored**: {outcome.reason} (kept at `{outcome.kept_at}`)."
+            self.tab.notify("Episode not stored", f"{outcome.reason}; kept at {outcome.kept_at}", error=True)
+
+    def discard_recording(self) -> None:
+        if self.client is None or not self._recording:
+            return
+        self.client.discard_recording()
+        self._recording = False
+        self._set_recording_ui(False)
+        self.status.content = "Recording discarded."
+
+    def _on_success(self, event) -> None:
+        if event.client is not None:
+            self._success_touched = True
+
+    # ------------------------------------------------------------------ deleting
+    def _confirm_delete(self, selected: bool) -> None:
+        store = self.app.store
+        if selected:
+            eid = self.episode_list.value.split(" ")[0]
+            try:
+                meta = store.get(eid)
+            except KeyError:
+                self.tab.notify("Nothing to delete", "Choose an episode first.", error=True)
+                return
+        else:
+            mine = store.episodes(source="teleop", newest_first=True, limit=1, task=self.task.value)
+            if not mine:
+                self.tab.notify("Nothing to delete", f"No teleop episode of {self.task.value}.", error=True)
+                return
+            meta = mine[0]
+        client = self.tab.client
+        with client.gui.add_modal("Delete this episode?") as modal:
+            client.gui.add_markdown(
+                f"`{meta.id}` — {meta.task}, {meta.role} by {meta.embodiment} ({meta.source}), "
+                f"{meta.num_frames} frames. This cannot be undone."
+            )
+            yes = client.gui.add_button("Delete", color="red")
+            no = client.gui.add_button("Keep it")
+
+        def delete(_) -> None:
+            modal.close()
+            try:
+                store.delete_episode(meta.id)
+            except KeyError:
+                self.tab.notify("Already gone", f"{meta.id} was deleted meanwhile.")
+                return
+            self.app.dataset_changed()
+            self.status.content = f"Deleted `{meta.id}`."
+            self.tab.notify("Episode deleted", meta.id)
+
+        yes.on_click(delete)
+        no.on_click(lambda _: modal.close())
+
+    # ------------------------------------------------------------------ scene / task choices
+    def _on_scene(self, event) -> None:
+        if event.client is None:
+            return
+        scene = self.scene.value
+        tasks = scene_tasks(scene)
+        self.task.options = tuple(tasks)
+        self.task.value = tasks[0]
+        self.robot.options = ("sawyer",) if scene == "metaworld" else ("sawyer", "panda")
+        if self.robot.value not in self.robot.options:
+            self.robot.value = "sawyer"
+        self.tab.run(self.open, "opening the session")
+
+    def _on_scene_button(self, event) -> None:
+        if event.target.value == "New seed":
+            self.seed.value = int(np.random.default_rng().integers(0, 100_000))
+        else:
+            self.tab.run(self.reset, "resetting the scene")
+
+    # ------------------------------------------------------------------ refresh
+    def refresh(self) -> None:
+        client = self.client
+        if client is not None and self._recording:
+            state, _ = client.state.get()
+            if isinstance(state, msg.SessionState) and state.state == "recording":
+                seconds = state.recorded_steps * (self.info.control_dt if self.info else 0.0)
+                self.rec_status.content = f"### ● REC {seconds:5.1f} s — {state.recorded_steps} steps"
+                if not self._success_touched and self.success.value != state.success:
+                    self.success.value = bool(state.success)
+        if self.app.dataset_version != self._list_version or self.task.value != self._list_task:
+            self._list_version, self._list_task = self.app.dataset_version, self.task.value
+            metas = self.app.store.episodes(task=self.task.value, newest_first=True, limit=100)
+            options = tuple(
+                f"{m.id} · {m.role}/{m.embodiment} · {m.source} · {'✔' if m.success else '✘' if m.success is False else '?'}"
+                for m in metas
+            ) or ("(none)",)
+            if self.episode_list.options != options:
+                self.episode_list.options = options
+
+    def close(self) -> None:
+        self._closed = True
+        if self.client is not None:
+            self.client.close()

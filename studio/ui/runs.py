@@ -1,0 +1,192 @@
+"""Training runs and checkpoints as the studio shows them, and which checkpoint is the active policy.
+
+Runs started from the browser live in ``<data-dir>/runs/<job-id>/`` (the train job's run directory:
+``config.json``, ``metrics.jsonl``, ``last.pt``, ``best.pt``). A policy shipped with the package is a
+checkpoint file under ``studio/policies/`` (or the file named by ``STUDIO_DEFAULT_POLICY``); when one
+exists it is the active policy until the user picks another. Without any checkpoint the Imitate panel
+falls back to the *oracle* planner, labelled as what it is: the execution ceiling, not the model.
+
+The user's choice is kept in ``<data-dir>/ui/active_checkpoint.json`` so that it survives restarts and is
+shared by every tab.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import studio
+
+RUNS_DIR = "runs"
+ACTIVE_FILE = "ui/active_checkpoint.json"
+DEFAULT_POLICY_DIR = Path(studio.__file__).resolve().parent / "policies"
+DEFAULT_POLICY_ENV = "STUDIO_DEFAULT_POLICY"
+ORACLE = "oracle"
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A choice of planner: a checkpoint file, or the oracle (``path == "oracle"``)."""
+
+    id: str
+    path: str
+    label: str
+    run_id: str | None = None
+    step: int | None = None
+
+    @property
+    def is_oracle(self) -> bool:
+        return self.path == ORACLE
+
+
+ORACLE_CHOICE = Checkpoint(
+    ORACLE, ORACLE, "oracle — execution ceiling (plans from the true state, not a model)"
+)
+
+
+@dataclass
+class RunInfo:
+    """What the Train panel lists about one run directory."""
+
+    id: str
+    path: Path
+    config: str
+    tasks: list[str]
+    step: int
+    total: int | None
+    ended: str | None
+    best_val: float | None
+    checkpoints: list[Checkpoint] = field(default_factory=list)
+
+
+def _read_jsonl(path: Path) -> list[dict]:
+    out = []
+    try:
+        with open(path, encoding="utf-8") as f:
+            for line in f:
+                line = line.strip()
+                if not line:
+                    continue
+                try:
+                    out.append(json.loads(line))
+                except json.JSONDecodeError:
+                    break  # a line being written right now
+    except FileNotFoundError:
+        pass
+    return out
+
+
+def read_metrics(run_dir: Path) -> dict[str, np.ndarray]:
+    """Training curves of a run: ``step`` and every logged series (loss, loss_sdtw, loss_wm, lr, ...),
+    plus ``val_step`` / ``val_loss_sdtw`` when validation ran. Missing values are NaN."""
+    rows = _read_jsonl(Path(run_dir) / "metrics.jsonl")
+    train = [r for r in rows if "step" in r and "loss" in r and r.get("split") != "val"]
+    val = [r for r in rows if r.get("split") == "val"]
+    out: dict[str, np.ndarray] = {"step": np.array([r["step"] for r in train], dtype=np.float64)}
+    for key in ("loss", "loss_sdtw", "loss_wm", "lr"):
+        out[key] = np.array([float(r.get(key, np.nan)) for r in train], dtype=np.float64)
+    out["val_step"] = np.array([r["step"] for r in val], dtype=np.float64)
+    out["val_loss_sdtw"] = np.array([float(r.get("val_loss_sdtw", np.nan)) for r in val], dtype=np.float64)
+    return out
+
+
+class RunRegistry:
+    """Runs under ``<data-dir>/runs``, shipped policies, and the active checkpoint."""
+
+    def __init__(self, data_dir: str | os.PathLike, policy_dir: str | os.PathLike | None = None):
+        self.data_dir = Path(data_dir)
+        self.runs_dir = self.data_dir / RUNS_DIR
+        self.policy_dir = Path(policy_dir) if policy_dir is not None else DEFAULT_POLICY_DIR
+        self._lock = threading.Lock()
+
+    def new_run_dir(self, run_id: str) -> Path:
+        path = self.runs_dir / run_id
+        path.mkdir(parents=True, exist_ok=False)
+        return path
+
+    # ------------------------------------------------------------------ listing
+    def default_policies(self) -> list[Checkpoint]:
+        files = []
+        env = os.environ.get(DEFAULT_POLICY_ENV)
+        if env and Path(env).is_file():
+            files.append(Path(env))
+        if self.policy_dir.is_dir():
+            files += sorted(self.policy_dir.glob("*.pt"))
+        return [Checkpoint(f"default/{f.stem}", str(f), f"shipped policy {f.stem}") for f in files]
+
+    def runs(self) -> list[RunInfo]:
+        out = []
+        if not self.runs_dir.is_dir():
+            return out
+        for d in sorted(self.runs_dir.iterdir()):
+            if not d.is_dir():
+                continue
+            try:
+                cfg = json.loads((d / "config.json").read_text())
+            except (FileNotFoundError, json.JSONDecodeError):
+                cfg = {}
+            rows = _read_jsonl(d / "metrics.jsonl")
+            steps = [r["step"] for r in rows if "step" in r and "loss" in r]
+            starts = [r for r in rows if r.get("event") in ("start", "resume")]
+            ends = [r for r in rows if r.get("event") == "end"]
+            vals = [r["val_loss_sdtw"] for r in rows if r.get("split") == "val" and "val_loss_sdtw" in r]
+            cks = []
+            for name in ("best", "last"):
+                f = d / f"{name}.pt"
+                if f.is_file():
+                    cks.append(Checkpoint(f"{d.name}/{name}", str(f), f"run {d.name} — {name}.pt", d.name))
+            preset = (d / "spec.json").is_file() and json.loads((d / "spec.json").read_text()).get("config")
+            out.append(
+                RunInfo(
+                    id=d.name,
+                    path=d,
+                    config=str(preset or "?"),
+                    tasks=list(cfg.get("tasks", [])),
+                    step=int(steps[-1]) if steps else 0,
+                    total=int(starts[-1]["total_steps"]) if starts and "total_steps" in starts[-1] else None,
+                    ended=ends[-1].get("status")
+                    if ends and (not starts or ends[-1]["time"] >= starts[-1]["time"])
+                    else None,
+                    best_val=min(vals) if vals else None,
+                    checkpoints=cks,
+                )
+            )
+        return out
+
+    def checkpoints(self) -> list[Checkpoint]:
+        """Every choice, best first: shipped policies, each run's best and last checkpoints, the oracle."""
+        cks = self.default_policies()
+        for run in reversed(self.runs()):
+            cks += run.checkpoints
+        return [*cks, ORACLE_CHOICE]
+
+    # ------------------------------------------------------------------ the active choice
+    def active(self) -> Checkpoint:
+        """The chosen checkpoint if it still exists, else the shipped policy, else the oracle."""
+        choices = {c.id: c for c in self.checkpoints()}
+        path = self.data_dir / ACTIVE_FILE
+        try:
+            chosen = json.loads(path.read_text()).get("id")
+        except (FileNotFoundError, json.JSONDecodeError, AttributeError):
+            chosen = None
+        if chosen in choices:
+            return choices[chosen]
+        defaults = self.default_policies()
+        return defaults[0] if defaults else ORACLE_CHOICE
+
+    def set_active(self, checkpoint_id: str) -> Checkpoint:
+        choices = {c.id: c for c in self.checkpoints()}
+        if checkpoint_id not in choices:
+            raise KeyError(f"no checkpoint {checkpoint_id!r}; known: {sorted(choices)}")
+        path = self.data_dir / ACTIVE_FILE
+        with self._lock:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_name(path.name + ".tmp")
+            tmp.write_text(json.dumps({"id": checkpoint_id}))
+            os.replace(tmp, path)
+        return choices[checkpoint_id]

@@ -1,0 +1,241 @@
+"""One browser tab's 3D scene: the simulated bodies, the external camera, and plan / path overlays.
+
+The bodies come from a :class:`~studio.backend.messages.SceneGeometry` (sent by the sim worker, or built
+from the scene files for replays): one viser frame per body that carries geoms, the geoms as meshes under
+it in their body-local poses. A pose update moves the body frames only, and only those that moved since
+the last update, all inside one ``client.atomic()`` block so the browser applies a whole tick at once.
+
+The external camera is drawn as a frustum (OpenCV convention, like :class:`studio.sim.camera.CameraModel`)
+showing its latest image. Overlays: the 5 waypoints of a plan (spheres coloured by gripper state, joined
+by a spline, the current one enlarged) and end-effector paths (splines, one colour per gripper state).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+
+import numpy as np
+import trimesh
+import viser
+import viser.transforms as vtf
+
+from studio.backend import messages as msg
+
+#: Poses that moved less than this (metres / quaternion components) are not re-sent.
+POSE_EPS = 1e-4
+OPEN_RGB = (40, 170, 90)
+CLOSED_RGB = (220, 70, 40)
+PATH_RGB = {"open": (60, 130, 230), "closed": (235, 140, 30)}
+
+
+def geom_mesh(geom: msg.GeomSpec, meshes: Sequence[msg.MeshSpec]) -> trimesh.Trimesh | None:
+    """The geom's surface in its own frame (None for types a viewer does not draw, e.g. height fields)."""
+    size = np.asarray(geom.size, dtype=np.float64)
+    if geom.type == "mesh" and geom.mesh >= 0:
+        spec = meshes[geom.mesh]
+        verts = np.frombuffer(spec.vertices, dtype="<f4").reshape(-1, 3)
+        faces = np.frombuffer(spec.faces, dtype="<i4").reshape(-1, 3)
+        return trimesh.Trimesh(verts.copy(), faces.copy(), process=False)
+    if geom.type == "box":
+        return trimesh.creation.box(extents=2 * size)
+    if geom.type == "sphere":
+        return trimesh.creation.icosphere(subdivisions=2, radius=size[0])
+    if geom.type == "cylinder":
+        return trimesh.creation.cylinder(radius=size[0], height=2 * size[1], sections=24)
+    if geom.type == "capsule":
+        return trimesh.creation.capsule(radius=size[0], height=2 * size[1], count=[12, 12])
+    if geom.type == "ellipsoid":
+        s = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+        s.apply_scale(size)
+        return s
+    if geom.type == "plane":
+        return trimesh.creation.box(extents=[2 * (size[0] or 2.0), 2 * (size[1] or 2.0), 0.002])
+    return None
+
+
+def camera_pose(camera: dict) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(position, wxyz, vertical fov in radians, aspect) of a :meth:`CameraModel.to_dict` camera."""
+    T = np.asarray(camera["T_world_cam"], dtype=np.float64)
+    K = np.asarray(camera["K"], dtype=np.float64)
+    w, h = float(camera["width"]), float(camera["height"])
+    fov = 2.0 * np.arctan2(h / 2.0, K[1, 1])
+    return T[:3, 3], vtf.SO3.from_matrix(T[:3, :3]).wxyz, float(fov), w / h
+
+
+class SceneView:
+    """The scene of one client (a tab). Thread-safe: poses arrive on a pump thread, overlays from callbacks."""
+
+    def __init__(self, client: viser.ClientHandle, root: str = "/sim"):
+        self.client = client
+        self.scene = client.scene
+        self.root = root
+        self.key: object = None
+        self.body_names: tuple[str, ...] = ()
+        self._bodies: dict[int, viser.FrameHandle] = {}
+        self._nodes: list = []
+        self._last: np.ndarray | None = None
+        self._lock = threading.RLock()
+        self._frustum: viser.CameraFrustumHandle | None = None
+        self._camera_key: tuple | None = None
+        self._overlays: dict[str, list] = {}
+        self.updates_sent = 0
+
+    # ------------------------------------------------------------------ bodies
+    def load(self, geometry: msg.SceneGeometry, key: object) -> None:
+        """Show ``geometry`` (replacing what was shown unless ``key`` says it is the same scene)."""
+        with self._lock:
+            if key == self.key and self._bodies:
+                self._last = None  # the next pose update re-sends every body
+                return
+            self._clear_bodies()
+            self.key = key
+            self.body_names = geometry.body_names
+            with self.client.atomic():
+                for i, g in enumerate(geometry.geoms):
+                    rgba = np.asarray(g.rgba)
+                    if rgba[3] < 0.05:
+                        continue
+                    mesh = geom_mesh(g, geometry.meshes)
+                    if mesh is None:
+                        continue
+                    body = self._bodies.get(g.body)
+                    if body is None:
+                        body = self.scene.add_frame(f"{self.root}/b{g.body}", show_axes=False)
+                        self._bodies[g.body] = body
+                    node = self.scene.add_mesh_simple(
+                        f"{self.root}/b{g.body}/g{i}",
+                        mesh.vertices.astype(np.float32),
+                        mesh.faces.astype(np.uint32),
+                        color=tuple(int(255 * c) for c in rgba[:3]),
+                        opacity=float(rgba[3]) if rgba[3] < 1 else None,
+                        flat_shading=g.type != "mesh",
+                        cast_shadow=False,
+                        receive_shadow=False,
+                        position=g.pos,
+                        wxyz=g.quat,
+                    )
+                    self._nodes.append(node)
+            self._last = None
+
+    def _clear_bodies(self) -> None:
+        for handle in [*self._nodes, *self._bodies.values()]:
+            handle.remove()
+        self._nodes.clear()
+        self._bodies.clear()
+        self.key = None
+        self._last = None
+
+    def apply(self, poses: np.ndarray) -> int:
+        """Move the bodies to ``poses`` ((B, 7) xyz + wxyz); returns how many bodies were sent."""
+        poses = np.asarray(poses, dtype=np.float32)
+        with self._lock:
+            if not self._bodies:
+                return 0
+            if self._last is None or self._last.shape != poses.shape:
+                moved = list(self._bodies)
+            else:
+                delta = np.abs(poses - self._last).max(axis=1)
+                moved = [b for b in self._bodies if b < len(poses) and delta[b] > POSE_EPS]
+            if moved:
+                with self.client.atomic():
+                    for b in moved:
+                        if b < len(poses):
+                            h = self._bodies[b]
+                            h.position = poses[b, :3].astype(np.float64)
+                            h.wxyz = poses[b, 3:].astype(np.float64)
+                self.updates_sent += 1
+            self._last = poses.copy()
+            return len(moved)
+
+    # ------------------------------------------------------------------ camera
+    def set_camera(self, camera: dict, image: np.ndarray | None = None) -> None:
+        """Draw the external camera (``CameraModel.to_dict()``), with ``image`` on its frustum if given."""
+        pos, wxyz, fov, aspect = camera_pose(camera)
+        key = (tuple(np.round(pos, 6)), tuple(np.round(wxyz, 6)), round(fov, 6), round(aspect, 6))
+        with self._lock:
+            if self._frustum is not None and key == self._camera_key:
+                if image is not None:
+                    self._frustum.image = image
+                return
+            if self._frustum is not None:
+                self._frustum.remove()
+            self._frustum = self.scene.add_camera_frustum(
+                f"{self.root}_camera", fov=fov, aspect=aspect, scale=0.12, thickness=0.004,
+                color=(60, 60, 60), image=image, jpeg_quality=70, position=pos, wxyz=wxyz,
+            )  # fmt: skip
+            self._camera_key = key
+
+    def set_camera_image(self, image: np.ndarray) -> None:
+        with self._lock:
+            if self._frustum is not None:
+                self._frustum.image = image
+
+    # ------------------------------------------------------------------ overlays
+    def clear_overlay(self, name: str) -> None:
+        with self._lock:
+            for h in self._overlays.pop(name, []):
+                h.remove()
+
+    def show_waypoints(self, name: str, waypoints: np.ndarray, current: int | None = None) -> None:
+        """The 5 waypoints (rows xyz + gripper probability) as numbered spheres joined by a spline."""
+        wps = np.asarray(waypoints, dtype=np.float64).reshape(-1, 4)
+        with self._lock:
+            self.clear_overlay(name)
+            handles = []
+            with self.client.atomic():
+                if len(wps) >= 2:
+                    handles.append(self.scene.add_spline_catmull_rom(
+                        f"/overlay/{name}/spline", wps[:, :3], thickness=0.004, color=(250, 200, 40)))  # fmt: skip
+                for i, row in enumerate(wps):
+                    closed = row[3] > 0.5
+                    big = current == i
+                    handles.append(self.scene.add_icosphere(
+                        f"/overlay/{name}/wp{i}", radius=0.022 if big else 0.013,
+                        color=CLOSED_RGB if closed else OPEN_RGB, position=row[:3],
+                        opacity=None if big or current is None else 0.55,
+                    ))  # fmt: skip
+                    # A child of the sphere: removed with it.
+                    self.scene.add_label(
+                        f"/overlay/{name}/wp{i}/label", f"{i + 1}{' ●' if closed else ''}",
+                        position=(0.0, 0.0, 0.03), font_screen_scale=0.8,
+                    )  # fmt: skip
+            self._overlays[name] = handles
+
+    def show_path(self, name: str, points: np.ndarray, gripper: np.ndarray | None = None) -> None:
+        """An end-effector path as splines, one per run of equal gripper state (open blue, closed orange)."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        closed = np.zeros(len(pts), bool) if gripper is None else np.asarray(gripper).reshape(-1) > 0.5
+        with self._lock:
+            self.clear_overlay(name)
+            handles = []
+            if len(pts) < 2:
+                self._overlays[name] = handles
+                return
+            step = max(1, len(pts) // 200)  # a spline through ≤ ~200 points is plenty for the eye
+            idx = np.unique(
+                np.r_[np.arange(0, len(pts), step), np.flatnonzero(np.diff(closed)), len(pts) - 1]
+            )
+            with self.client.atomic():
+                start = 0
+                for k in range(1, len(idx) + 1):
+                    if k == len(idx) or closed[idx[k]] != closed[idx[start]]:
+                        end = min(k, len(idx) - 1)
+                        seg = pts[idx[start : end + 1]]
+                        if len(seg) >= 2:
+                            color = PATH_RGB["closed" if closed[idx[start]] else "open"]
+                            handles.append(self.scene.add_spline_catmull_rom(
+                                f"/overlay/{name}/s{k}", seg, thickness=0.005, color=color))  # fmt: skip
+                        start = k
+                handles.append(self.scene.add_icosphere(
+                    f"/overlay/{name}/start", radius=0.01, color=(255, 255, 255), position=pts[0]))  # fmt: skip
+            self._overlays[name] = handles
+
+    def clear(self) -> None:
+        with self._lock:
+            for name in list(self._overlays):
+                self.clear_overlay(name)
+            self._clear_bodies()
+            if self._frustum is not None:
+                self._frustum.remove()
+                self._frustum = None
