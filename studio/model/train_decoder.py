@@ -125,7 +125,7 @@ def train_decoder(
     model.requires_grad_(False)
     torch.manual_seed(cfg.seed)
     decoder = LatentDecoder(model.pooled_dim, model.cfg.image_size, cfg).to(device)
-    optimizer = torch.optim.AdamW(decoder.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    optimizer = torch.optim.AdamW(decoder.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
     total = cfg.steps
     scheduler = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda s: 0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(s / max(total - 1, 1), 1.0)))
