@@ -148,6 +148,9 @@ class StudioTab:
         self.mode = mode
         self.view_note.content = note
         self.back_to_teleop.visible = mode != "teleop"
+        gizmo = getattr(getattr(self, "teleop", None), "gizmo", None)
+        if gizmo is not None:
+            gizmo.visible = mode == "teleop"
         for name in ("plan", "path", "rollout"):
             if mode == "teleop":
                 self.view.clear_overlay(name)

@@ -191,15 +191,14 @@ class SceneView:
                     closed = row[3] > 0.5
                     big = current == i
                     handles.append(self.scene.add_icosphere(
-                        f"/overlay/{name}/wp{i}", radius=0.022 if big else 0.013,
+                        f"/overlay/{name}/wp{i}", radius=0.028 if big else 0.013,
                         color=CLOSED_RGB if closed else OPEN_RGB, position=row[:3],
                         opacity=None if big or current is None else 0.55,
                     ))  # fmt: skip
-                    # A child of the sphere: removed with it.
-                    self.scene.add_label(
-                        f"/overlay/{name}/wp{i}/label", f"{i + 1}{' ●' if closed else ''}",
-                        position=(0.0, 0.0, 0.03), font_screen_scale=0.8,
-                    )  # fmt: skip
+                    handles.append(self.scene.add_label(
+                        f"/overlay/{name}/label{i}", f"{i + 1}{' ●' if closed else ''}",
+                        position=row[:3] + np.array([0.0, 0.0, 0.035]), font_screen_scale=0.8,
+                    ))  # fmt: skip
             self._overlays[name] = handles
 
     def show_path(self, name: str, points: np.ndarray, gripper: np.ndarray | None = None) -> None:

@@ -16,26 +16,21 @@ simulated episodes also replay in the scene with their end-effector path (blue: 
 closed)."""
 
 
+def _by_source(counts: Counter, task: str, role: str) -> str:
+    parts = [f"{counts[(task, role, s)]} {s}" for s in SOURCES if counts.get((task, role, s))]
+    return ", ".join(parts) or "—"
+
+
 def counts_table(metas) -> str:
     """Markdown table: one row per task, expert and agent counts by source."""
     counts = Counter((m.task, m.role, m.source) for m in metas)
     tasks = sorted({m.task for m in metas})
     if not tasks:
         return "The dataset is empty: record in *Teleop*, upload a video, or run `studio collect`."
-    used = [s for s in SOURCES if any(k[2] == s for k in counts)]
-    head = (
-        "| task | "
-        + " | ".join(f"expert {s}" for s in used)
-        + " | "
-        + " | ".join(f"agent {s}" for s in used)
-        + " |"
-    )
-    rows = [head, "|---" * (1 + 2 * len(used)) + "|"]
+    rows = ["| task | expert | agent |", "|---|---|---|"]
     for t in tasks:
-        cells = [str(counts.get((t, "expert", s), 0) or "·") for s in used]
-        cells += [str(counts.get((t, "agent", s), 0) or "·") for s in used]
-        rows.append(f"| {t} | " + " | ".join(cells) + " |")
-    total = Counter((m.role) for m in metas)
+        rows.append(f"| {t} | {_by_source(counts, t, 'expert')} | {_by_source(counts, t, 'agent')} |")
+    total = Counter(m.role for m in metas)
     rows.append("")
     rows.append(f"{len(metas)} episodes: {total.get('expert', 0)} expert, {total.get('agent', 0)} agent.")
     return "\n".join(rows)

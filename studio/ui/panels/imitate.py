@@ -29,6 +29,7 @@ live in the scene. Record demonstrations in *Teleop*, upload them in *Upload*, o
 
 SCENES = ("pick_place", "push", "metaworld")
 HELD_OUT = " (held-out)"
+SPEEDS = {"1× (real time)": 1.0, "0.5×": 0.5, "0.25×": 0.25, "as fast as possible": 0.0}
 _WAYPOINT = re.compile(r"waypoint (\d+) of (\d+)")
 
 
@@ -73,6 +74,8 @@ class ImitatePanel:
         )
         self.replans = gui.add_number("Re-plans", initial_value=1, min=0, max=5, step=1,
                                       hint="re-plans allowed within the episode after a failed attempt")  # fmt: skip
+        self.speed = gui.add_dropdown("Speed", tuple(SPEEDS), initial_value="1× (real time)",
+                                      hint="how fast the rollout runs while you watch it")  # fmt: skip
         self.policy = gui.add_markdown("")
         buttons = gui.add_button_group("Run", ("Plan", "Execute", "Re-plan", "Cancel"))
         self.buttons = buttons
@@ -198,7 +201,7 @@ class ImitatePanel:
         ck = self.app.runs.active()
         replans = int(self.replans.value)
         spec = {"checkpoint": ck.path, "checkpoint_id": ck.id, "expert_episode_id": demo, "task": task,
-                "seed": seed, "replans": replans, "robot": self._robot(task), "speed": 1.0}  # fmt: skip
+                "seed": seed, "replans": replans, "robot": self._robot(task), "speed": SPEEDS[self.speed.value]}  # fmt: skip
         tracked = self.app.jobs.submit("rollout", spec, started_by=self.tab.client.client_id)
         self.outcome.content = ""
         self.attach(tracked)

@@ -77,7 +77,7 @@ class TrainPanel:
             title="Losses", aspect=1.5, scales={"x": uplot.Scale(time=False, auto=True)},
         )  # fmt: skip
         self.lr_plot = gui.add_uplot(
-            (x, nan), (uplot.Series(label="step"), uplot.Series(label="learning rate", stroke="#2ca02c", width=1.5)),
+            (x, nan), (uplot.Series(label="step"), uplot.Series(label="learning rate ×1e-4", stroke="#2ca02c", width=1.5)),
             title="Learning rate", aspect=2.5, scales={"x": uplot.Scale(time=False, auto=True)},
         )  # fmt: skip
         with gui.add_folder("Runs and checkpoints"):
@@ -206,9 +206,9 @@ class TrainPanel:
             parts.append(p.message)
         if tracked.result is not None:
             r = tracked.result
-            parts.append(
-                f"ended: {r.get('status')} at step {r.get('step')}; best val {r.get('best_val_loss')}"
-            )
+            best = r.get("best_val_loss")
+            best_text = f"; best validation loss {best:.4f}" if isinstance(best, float) else ""
+            parts.append(f"ended: {r.get('status')} at step {r.get('step')}{best_text}")
         text = "  \n".join(parts)
         if self._shown.get("state") != text:
             self._shown["state"] = text
@@ -233,7 +233,7 @@ class TrainPanel:
             return
         self._shown["curves"] = key
         self.loss_plot.data = (step, loss, sdtw, wm)
-        self.lr_plot.data = (step, lr)
+        self.lr_plot.data = (step, lr * 1e4)
 
     def _show_runs(self) -> None:
         runs = self.app.runs.runs()
@@ -248,7 +248,7 @@ class TrainPanel:
                 best = f"{r.best_val:.4f}" if r.best_val is not None else "—"
                 cks = ", ".join(c.id.split("/")[-1] for c in r.checkpoints) or "—"
                 rows.append(
-                    f"| `{r.id}` | {r.config} | {r.step}{total} | {r.ended or '…'} | {best} | {cks} |"
+                    f"| `{r.id.removeprefix('train-')}` | {r.config} | {r.step}{total} | {r.ended or '…'} | {best} | {cks} |"
                 )
             text = "\n".join(rows)
         if self._shown.get("runs") != text:

@@ -28,18 +28,19 @@ class WorkersPanel:
         entries = self.tab.app.hub.directory.workers()
         if not entries:
             return "**No worker is connected.** Teleop, plans, rollouts and training wait for one."
-        rows = ["| kind | worker | host | state | doing | offers |", "|---|---|---|---|---|---|"]
+        rows = ["| kind | worker | host | state | doing | sessions | offers |", "|---" * 7 + "|"]
         for e in entries:
             st = e.status
             if st is None:
-                rows.append(f"| {e.kind} | `{e.worker}` | ? | joining | | |")
+                rows.append(f"| {e.kind} | `{e.worker}` | ? | joining | | | |")
                 continue
             offers = ", ".join(st.job_kinds) or "—"
             if st.unavailable:
                 offers += " (not: " + ", ".join(st.unavailable) + ")"
             doing = st.activity + (f" — job `{st.job}`" if st.job else "")
             rows.append(
-                f"| {e.kind} | `{e.worker}` | {st.host} (pid {st.pid}) | {st.state} | {doing} | {offers} |"
+                f"| {e.kind} | `{e.worker}` | {st.host} (pid {st.pid}) | {st.state} | {doing} | {st.sessions} "
+                f"| {offers} |"
             )
         rows.append("")
         rows.append(f"{len(entries)} worker(s); up for " + ", ".join(
