@@ -14,6 +14,7 @@ TARGETS: dict[str, str] = {
     "collect": "studio.data.bench",
     "bus": "studio.backend.bench",
     "metaworld": "studio.sim.metaworld_bench",
+    "ui": "studio.ui.bench",
 }
 
 

@@ -1,0 +1,153 @@
+"""`studio bench ui`: the pose update rate a browser receives during teleop, and drag-to-motion latency.
+
+Starts the studio in this process (hub, embedded workers, viser server) on free loopback ports with a
+throwaway data directory, opens it in headless Chromium (Playwright; Debian's ``/usr/bin/chromium`` unless
+``--chromium`` says otherwise) and, once the tab's teleop session is ready, drags the end-effector target
+along a circle at ``--drag-hz`` through the gizmo's server-side callback — the path a browser drag takes.
+
+Reported:
+
+* ``browser_pose_frames_hz``: websocket frames per second that reach the page carrying body poses (each is
+  applied at once by the browser), counted on the page's websocket and decoded as viser's wire format;
+* ``browser_pose_messages_hz``: body pose messages per second inside those frames;
+* ``server_pushes_hz``: pose batches the tab's pump handed to viser per second;
+* ``drag_to_motion_ms_p50`` / ``_p99``: from the drag reaching the server to the first pose frame back from
+  the sim worker that applied it (IK and physics on the worker, the bus both ways);
+* ``drag_to_push_ms_p50`` / ``_p99``: to the moment that frame's poses were queued for the browser.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+    "--disable-sync", "--no-first-run",
+]  # fmt: skip
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--seconds", type=float, default=8.0, help="length of the measured drag")
+    parser.add_argument("--drag-hz", type=float, default=60.0, help="gizmo updates per second")
+    parser.add_argument("--robot", default="sawyer", choices=("sawyer", "panda"))
+    parser.add_argument("--chromium", default=CHROMIUM, help="Chromium executable for Playwright")
+
+
+class _FrameCounter:
+    """Decodes viser websocket frames in the page and counts those that carry body poses."""
+
+    def __init__(self, prefix: str = "/sim/b"):
+        import zstandard
+
+        self.prefix = prefix
+        self._zstd = zstandard.ZstdDecompressor()
+        self.counting = False
+        self.frames = 0
+        self.messages = 0
+        self._lock = threading.Lock()
+
+    def __call__(self, payload) -> None:
+        if not self.counting or isinstance(payload, str):
+            return
+        import msgspec
+
+        data = bytes(payload)
+        try:
+            size = int.from_bytes(data[:8], "little")
+            csize = int.from_bytes(data[8:16], "little")
+            inner = msgspec.msgpack.decode(self._zstd.decompress(data[16 : 16 + csize], max_output_size=size))
+        except Exception:
+            return
+        n = sum(
+            1
+            for m in inner.get("messages", ())
+            if m.get("type") in ("SetPositionMessage", "SetOrientationMessage")
+            and str(m.get("name", "")).startswith(self.prefix)
+        )
+        if n:
+            with self._lock:
+                self.frames += 1
+                self.messages += n
+
+
+def _percentiles(values: list[float]) -> tuple[float | None, float | None]:
+    if not values:
+        return None, None
+    arr = np.asarray(values)
+    return float(np.percentile(arr, 50)), float(np.percentile(arr, 99))
+
+
+def measure(args: argparse.Namespace) -> dict:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from playwright.sync_api import sync_playwright
+
+    from studio.backend import bus
+    from studio.ui.app import StudioApp
+
+    if not Path(args.chromium).exists():
+        raise SystemExit(f"studio bench ui: {args.chromium} is missing (apt-get install chromium)")
+    with tempfile.TemporaryDirectory(prefix="studio-bench-ui-") as tmp:
+        app = StudioApp(
+            port=bus.free_loopback_port(),
+            data_dir=Path(tmp) / "data",
+            bus_config=bus.BusConfig.hub([bus.loopback_endpoint(bus.free_loopback_port())]),
+        )
+        try:
+            if not app.wait_for_workers(120):
+                raise SystemExit("studio bench ui: the embedded workers did not start")
+            counter = _FrameCounter()
+            with sync_playwright() as p:
+                browser = p.chromium.launch(executable_path=args.chromium, args=CHROMIUM_ARGS)
+                page = browser.new_page(viewport={"width": 1100, "height": 720})
+                page.on("websocket", lambda ws: ws.on("framereceived", counter))
+                page.goto(app.url)
+                page.get_by_text("ready. Drag the gizmo").first.wait_for(timeout=120_000)
+                (tab,) = app.tabs.values()
+                if args.robot != tab.teleop.robot.value:
+                    tab.teleop.robot.value = args.robot
+                    tab.teleop.open()
+                teleop = tab.teleop
+                center = np.asarray(teleop.client.latest_pose().ee_pos, dtype=np.float64)
+                time.sleep(1.0)
+                app.stats.reset()
+                pushes0 = tab.pose_pushes
+                counter.counting = True
+                t0 = time.perf_counter()
+                period = 1.0 / args.drag_hz
+                k = 0
+                while (now := time.perf_counter()) - t0 < args.seconds:
+                    phase = 2 * np.pi * (now - t0) / 4.0  # one circle every 4 s, 6 cm radius
+                    teleop.move_to(center + 0.06 * np.array([np.cos(phase) - 1.0, np.sin(phase), 0.0]))
+                    k += 1
+                    time.sleep(max(0.0, t0 + k * period - time.perf_counter()))
+                elapsed = time.perf_counter() - t0
+                time.sleep(0.3)  # frames in flight
+                counter.counting = False
+                pushes = tab.pose_pushes - pushes0
+                browser.close()
+            ack50, ack99 = _percentiles(app.stats.ack_ms)
+            push50, push99 = _percentiles(app.stats.push_ms)
+            return {
+                "seconds": round(elapsed, 2),
+                "robot": args.robot,
+                "drag_hz": args.drag_hz,
+                "drags_sent": k,
+                "browser_pose_frames_hz": round(counter.frames / elapsed, 1),
+                "browser_pose_messages_hz": round(counter.messages / elapsed, 1),
+                "server_pushes_hz": round(pushes / elapsed, 1),
+                "drag_to_motion_ms_p50": None if ack50 is None else round(ack50, 2),
+                "drag_to_motion_ms_p99": None if ack99 is None else round(ack99, 2),
+                "drag_to_push_ms_p50": None if push50 is None else round(push50, 2),
+                "drag_to_push_ms_p99": None if push99 is None else round(push99, 2),
+                "samples": len(app.stats.ack_ms),
+            }
+        finally:
+            app.stop()
