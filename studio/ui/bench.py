@@ -119,18 +119,27 @@ def measure(args: argparse.Namespace) -> dict:
                 time.sleep(1.0)
                 app.stats.reset()
                 pushes0 = tab.pose_pushes
+                sent = [0]
+
+                def drag() -> None:  # the gizmo's callback at drag rate, on its own thread like viser's
+                    period = 1.0 / args.drag_hz
+                    start = time.perf_counter()
+                    while (now := time.perf_counter()) - start < args.seconds:
+                        phase = 2 * np.pi * (now - start) / 4.0  # one circle every 4 s, 6 cm radius
+                        teleop.move_to(center + 0.06 * np.array([np.cos(phase) - 1.0, np.sin(phase), 0.0]))
+                        sent[0] += 1
+                        time.sleep(max(0.0, start + sent[0] * period - time.perf_counter()))
+
+                dragger = threading.Thread(target=drag, daemon=True)
                 counter.counting = True
                 t0 = time.perf_counter()
-                period = 1.0 / args.drag_hz
-                k = 0
-                while (now := time.perf_counter()) - t0 < args.seconds:
-                    phase = 2 * np.pi * (now - t0) / 4.0  # one circle every 4 s, 6 cm radius
-                    teleop.move_to(center + 0.06 * np.array([np.cos(phase) - 1.0, np.sin(phase), 0.0]))
-                    k += 1
-                    time.sleep(max(0.0, t0 + k * period - time.perf_counter()))
+                dragger.start()
+                while dragger.is_alive():
+                    page.wait_for_timeout(50)  # Playwright delivers websocket events while it runs
                 elapsed = time.perf_counter() - t0
-                time.sleep(0.3)  # frames in flight
+                page.wait_for_timeout(300)  # frames in flight
                 counter.counting = False
+                k = sent[0]
                 pushes = tab.pose_pushes - pushes0
                 browser.close()
             ack50, ack99 = _percentiles(app.stats.ack_ms)
