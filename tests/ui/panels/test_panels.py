@@ -1,0 +1,33 @@
+"""Pure helpers of the panels: dataset counts, override parsing, task labels."""
+
+from types import SimpleNamespace
+
+from studio.ui.panels.datasets import counts_table
+from studio.ui.panels.imitate import HELD_OUT, task_labels
+from studio.ui.panels.train import parse_overrides
+
+
+def test_counts_table_by_role_and_source():
+    meta = lambda task, role, source: SimpleNamespace(task=task, role=role, source=source)  # noqa: E731
+    metas = [meta("pick_place/cube->red", "expert", "scripted")] * 3 + [
+        meta("pick_place/cube->red", "expert", "upload"),
+        meta("pick_place/cube->red", "agent", "rollout"),
+        meta("push/red-forward", "agent", "teleop"),
+    ]
+    text = counts_table(metas)
+    assert "| pick_place/cube->red | 3 scripted, 1 upload | 1 rollout |" in text
+    assert "| push/red-forward | — | 1 teleop |" in text and "6 episodes: 4 expert, 2 agent." in text
+    assert "empty" in counts_table([])
+
+
+def test_parse_overrides_keeps_lists_together():
+    text = "model.image_size=[48, 64]; train.batch_size=4;\n train.log_every=1 ;"
+    assert parse_overrides(text) == ["model.image_size=[48, 64]", "train.batch_size=4", "train.log_every=1"]
+
+
+def test_task_labels_mark_the_held_out_tasks():
+    labels = task_labels()
+    assert labels["pick_place/bar->blue" + HELD_OUT] == "pick_place/bar->blue"
+    assert labels["pick_place/cube->red"] == "pick_place/cube->red"
+    assert labels["push/blue-backward" + HELD_OUT] == "push/blue-backward"
+    assert list(labels).index("pick_place/bar->blue" + HELD_OUT) < list(labels).index("pick_place/cube->red")
