@@ -27,8 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--port", type=int, default=8080, help="web port (the next free one is used if taken)"
     )
     add_data_dir_argument(parser)
-    parser.add_argument("--workers", choices=("embedded", "none"), default="embedded",
-                        help="embedded (default): start one sim worker and one trainer here; none: wait for "
+    parser.add_argument("--workers", choices=("embedded", "default", "none"), default="embedded",
+                        help="embedded (default, alias: default): start one sim worker and one trainer here; none: wait for "
                              "external workers")  # fmt: skip
     parser.add_argument("--log-level", default="WARNING", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     bus.add_bus_arguments(parser, "hub")
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"studio serve: serving on {args.host} — other machines can reach this studio", file=sys.stderr)
     try:
         app = StudioApp(host=args.host, port=args.port, data_dir=args.data_dir, bus_config=config,
-                        workers=args.workers)  # fmt: skip
+                        workers="none" if args.workers == "none" else "embedded")  # fmt: skip
     except bus.BusError as e:
         print(f"studio serve: {e}", file=sys.stderr)
         return 1
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(sig, lambda *_: stop.set())
     workers = (
         "one sim worker and one trainer"
-        if args.workers == "embedded"
+        if args.workers != "none"
         else "no workers (waiting for external ones)"
     )
     print(

@@ -210,6 +210,8 @@ class ImitatePanel:
     def replan(self):
         if self.rollout is None or not self.rollout.terminal:
             raise ValueError("re-planning continues a finished, failed rollout: Execute first")
+        if (self.rollout.result or {}).get("success"):
+            raise ValueError("the rollout succeeded: there is nothing to re-plan")
         self.replans.value = int(self.rollout.spec.get("replans", 0)) + 1
         return self.execute()
 
