@@ -51,6 +51,7 @@ class TeleopPanel:
         self._closed = False
         self._token = 0
         self.drags = 0
+        self._lost = False
         gui = tab.client.gui
         gui.add_markdown(HINTS)
         scenes = tuple(s for s in SCENES if scene_tasks(s))
@@ -97,24 +98,31 @@ class TeleopPanel:
     # ------------------------------------------------------------------ session
     def start(self) -> None:
         self._preview_thread.start()
-        self.tab.run(self.open, "opening the teleop session")
+        self._await_worker()
 
-    def _wait_worker(self) -> str:
-        directory = self.app.hub.directory
-        deadline = time.monotonic() + 90.0
-        while True:
-            try:
-                return choose_sim_worker(directory)
-            except bus.BusError:
-                if time.monotonic() > deadline or self._closed:
-                    raise
-                self.status.content = "Waiting for a sim worker to join (`studio worker sim`)…"
-                directory.wait_for(lambda ws: any(w.kind == "sim" and w.status for w in ws), 1.0)
+    def _await_worker(self) -> None:
+        """Open the session once a sim worker is on the bus (on its own thread: other panels stay usable)."""
+
+        def wait() -> None:
+            directory = self.app.hub.directory
+            while not self._closed:
+                try:
+                    choose_sim_worker(directory)
+                    break
+                except bus.BusError:
+                    self.status.content = (
+                        "Waiting for a sim worker to join (`studio worker sim --connect …`)…"
+                    )
+                    directory.wait_for(lambda ws: any(w.kind == "sim" and w.status for w in ws), 1.0)
+            if not self._closed:
+                self.tab.run(self.open, "opening the teleop session")
+
+        threading.Thread(target=wait, daemon=True, name="teleop-wait-worker").start()
 
     def open(self) -> None:
         """(Re-)open the session with the chosen scene, robot, task and seed."""
         if self.client is None:
-            worker = self._wait_worker()
+            worker = choose_sim_worker(self.app.hub.directory)
             self.client = TeleopClient(self.app.hub.session, worker, on_pose=self._on_pose, timeout=10.0)
         scene, robot, task, seed = self.scene.value, self.robot.value, self.task.value, int(self.seed.value)
         self.status.content = f"Opening **{task}** with the **{robot}** on `{self.client.worker}`…"
@@ -356,6 +364,12 @@ class TeleopPanel:
     # ------------------------------------------------------------------ refresh
     def refresh(self) -> None:
         client = self.client
+        if client is not None and not self.app.hub.directory.is_alive(client.worker) and not self._lost:
+            # The worker hosting this session is gone (killed, machine lost): wait for another one.
+            self._lost = True
+            self.tab.notify("Sim worker lost", f"{client.worker} left the bus; reopening on the next sim worker.",
+                            error=True)  # fmt: skip
+            self.tab.run(self._drop_client, "dropping the lost session")
         if client is not None and self._recording:
             state, _ = client.state.get()
             if isinstance(state, msg.SessionState) and state.state == "recording":
@@ -372,6 +386,15 @@ class TeleopPanel:
             ) or ("(none)",)
             if self.episode_list.options != options:
                 self.episode_list.options = options
+
+    def _drop_client(self) -> None:
+        client, self.client, self.info = self.client, None, None
+        self._recording = False
+        self._set_recording_ui(False)
+        if client is not None:
+            client.close()
+        self._lost = False
+        self._await_worker()
 
     def close(self) -> None:
         self._closed = True
