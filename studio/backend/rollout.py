@@ -240,8 +240,8 @@ def run_rollout_job(ctx) -> dict:
 
     Spec: ``checkpoint`` (path or ``"oracle"``), ``expert_episode_id``, ``task``, ``seed``, ``replans``
     (default 0), ``robot`` (default ``"panda"``), ``checkpoint_id`` (the name stored with the rollout;
-    default the checkpoint file's stem), ``speed`` (0, the default: as fast as possible; otherwise
-    simulated seconds per wall-clock second, for live viewing). Streams progress (planning, waypoint i of 5, grasp
+    default the checkpoint file's stem), ``speed`` (simulated seconds per wall-clock second,
+    default 1 = real time so viewers see it live; 0 = as fast as possible). Streams progress (planning, waypoint i of 5, grasp
     correction, re-planning, outcome) and body poses at ≤ 30 Hz, stores the rollout and returns its summary.
     """
     import time as _time
