@@ -64,7 +64,31 @@ class RunInfo:
     checkpoints: list[Checkpoint] = field(default_factory=list)
 
 
+_JSONL_CACHE: dict[str, tuple[tuple[int, int], list[dict]]] = {}
+_JSONL_LOCK = threading.Lock()
+
+
 def _read_jsonl(path: Path) -> list[dict]:
+    """The records of a JSON-lines file (a torn last line is ignored); re-read only when the file changed."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return []
+    stamp = (st.st_size, st.st_mtime_ns)
+    key = str(path)
+    with _JSONL_LOCK:
+        hit = _JSONL_CACHE.get(key)
+    if hit is not None and hit[0] == stamp:
+        return hit[1]
+    rows = _parse_jsonl(path)
+    with _JSONL_LOCK:
+        if len(_JSONL_CACHE) > 256:
+            _JSONL_CACHE.clear()
+        _JSONL_CACHE[key] = (stamp, rows)
+    return rows
+
+
+def _parse_jsonl(path: Path) -> list[dict]:
     out = []
     try:
         with open(path, encoding="utf-8") as f:

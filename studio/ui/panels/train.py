@@ -10,6 +10,7 @@ otherwise from the job's progress stream.
 from __future__ import annotations
 
 import json
+import os
 import time
 
 import numpy as np
@@ -217,6 +218,15 @@ class TrainPanel:
 
     def _show_curves(self, tracked) -> None:
         run_dir = tracked.spec.get("run_dir")
+        if run_dir:
+            try:
+                st = os.stat(os.path.join(run_dir, "metrics.jsonl"))
+                stamp = (st.st_size, st.st_mtime_ns, len(tracked.history))
+            except OSError:
+                stamp = (0, 0, len(tracked.history))
+            if self._shown.get("metrics_stamp") == stamp:
+                return
+            self._shown["metrics_stamp"] = stamp
         curves = read_metrics(run_dir) if run_dir else None
         if curves is None or len(curves["step"]) == 0:
             hist = [h for h in tracked.history if "loss" in h.metrics]
