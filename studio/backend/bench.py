@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", default="pick_place")
     parser.add_argument("--robot", default="panda")
     parser.add_argument("--task", default="pick_place/cube->red")
-    parser.add_argument("--control-hz", type=float, default=60.0, help="the worker's control rate")
+    parser.add_argument("--control-hz", type=float, default=100.0, help="the worker's control rate")
 
 
 def measure(args: argparse.Namespace) -> dict:

@@ -66,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-sessions", type=int, default=4, help="most teleop sessions at once (sim; default 4)"
     )
-    parser.add_argument("--control-hz", type=float, default=60.0, help="teleop control rate (sim)")
+    parser.add_argument("--control-hz", type=float, default=100.0, help="teleop control rate (sim), Hz")
     parser.add_argument(
         "--exit-with-parent",
         action="store_true",

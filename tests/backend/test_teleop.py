@@ -55,7 +55,7 @@ def test_session_moves_the_arm_streams_poses_and_renders(site):
         info = client.open("pick_place", "panda", TASK, seed=3)
         assert info.task == TASK and info.seed == 3 and info.worker == "sim-local"
         assert "external" in info.cameras and info.body_names[0] == "world"
-        assert info.camera["width"] == 320 and info.control_dt == pytest.approx(0.016)
+        assert info.camera["width"] == 320 and info.control_dt == pytest.approx(0.01)
         first = client.poses.wait_until(lambda f: True, 5.0)
         assert first.body_count == len(info.body_names)
         start = np.asarray(first.ee_pos)
