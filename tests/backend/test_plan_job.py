@@ -101,3 +101,16 @@ def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
         sim_seconds = row.num_steps * store.get(row.episode_id).control_dt
     assert wall >= 0.9 * sim_seconds and len(poses) >= 20 * sim_seconds
     assert row.checkpoint_id is None and row.extra["checkpoint"] == "oracle"
+
+
+def test_a_sim_worker_survives_loading_the_model_after_rendering(hub, workers):
+    """Importing triton after Mesa's EGL is up segfaults; sim workers import it first (worker.preload_llvm_users)."""
+    workers.start("sim", "sim-llvm", handlers=("rtm=render_then_model:run",))
+    wait_worker(hub.directory, "sim-llvm")
+    client = JobClient(hub.session)
+    job = client.submit("rtm", {}, worker_kind="sim")
+    with client.watch(job.job) as w:
+        final = w.wait(timeout=120)
+        assert final.state == "succeeded", final.reason
+        w.wait(lambda w: w.result is not None, 10)
+    assert w.result.result["mean"] > 0
