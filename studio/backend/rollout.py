@@ -48,6 +48,8 @@ class PlanRecord:
     start_tick: int
     latent_states: np.ndarray | None = None
     pooled_states: np.ndarray | None = None
+    #: (S, h, w, 3) uint8: the predicted latent states decoded to images (when the model has a decoder).
+    latent_images: np.ndarray | None = None
 
 
 @dataclass
@@ -196,6 +198,8 @@ def store_rollout(store, out: RolloutOutcome, *, expert_episode_id: str | None, 
                 arrays[f"plan{i}_latent_states"] = np.asarray(p.latent_states, dtype=np.float16)
             if p.pooled_states is not None:
                 arrays[f"plan{i}_pooled_states"] = np.asarray(p.pooled_states, dtype=np.float32)
+            if p.latent_images is not None:
+                arrays[f"plan{i}_latent_images"] = np.asarray(p.latent_images, dtype=np.uint8)
         arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
         arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
         np.savez_compressed(tmp / "plans.npz", **arrays)
@@ -315,6 +319,13 @@ def run_rollout_job(ctx) -> dict:
                       on_event=on_event, on_tick=on_tick, should_stop=lambda: ctx.cancelled)
     ctx.raise_if_cancelled()
     checkpoint = str(spec["checkpoint"])
+    if checkpoint != "oracle":
+        # Decoded here, where the model lives, so that viewers (the UI) never need torch.
+        from studio.backend.plan_job import decode_latents
+
+        for p in out.plans:
+            if p.pooled_states is not None:
+                p.latent_images = decode_latents(checkpoint, p.pooled_states)
     checkpoint_id = spec.get("checkpoint_id") or (None if checkpoint == "oracle" else Path(checkpoint).stem)
     record = store_rollout(store, out, expert_episode_id=str(spec["expert_episode_id"]),
                            checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),

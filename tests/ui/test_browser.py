@@ -370,6 +370,44 @@ def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
     assert row and row[0].checkpoint_id is None
 
 
+def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots):
+    """The run trained from the UI (plus a latent decoder) as the active policy: Plan shows decoded latents,
+    Execute stores a rollout whose predicted images the inspector puts beside the actual frames."""
+    tab = _tab(studio)
+    im = tab.imitate
+    run = studio.data_dir / "runs" / tab.train.job_id
+    # The latent decoder, trained as a user would (its own process: this one never imports torch).
+    cmd = [sys.executable, "-m", "studio.cli", "train-decoder", "--model", str(run / "last.pt"),
+           "--data", str(studio.data_dir), "--out", str(run / "decoder"), "--steps", "2", "--batch-size", "2",
+           "--scene", str(run / "split.json"), "--no-progress"]  # fmt: skip
+    done = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"}
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    studio.runs.set_active(f"{run.name}/last")
+    page.get_by_role("tab", name="Imitate").click()
+    _wait(lambda: f"{run.name}/last" in im.policy.content, 20, "the trained policy to be active")
+    page.get_by_role("button", name="Plan", exact=True).click()
+    _wait(lambda: im.latent_strip.visible, 120, "the decoded latent trajectory")
+    _shot(page, shots / "imitate-plan-trained.png")
+    im.speed.value = "as fast as possible"
+    im.replans.value = 0
+    previous = im.rollout.job
+    page.get_by_role("button", name="Execute", exact=True).click()
+    _wait(lambda: im.rollout.job != previous, 30, "the new rollout")
+    result = _wait(lambda: im.rollout.result if im.rollout.terminal else None, 180, "the rollout to finish")
+    assert im.rollout.state == "succeeded" and "success" in result
+    (row,) = [r for r in studio.store.catalog.rollouts() if r.id == result["rollout_id"]]
+    assert row.checkpoint_id == f"{run.name}/last" and row.extra["checkpoint"] == str(run / "last.pt")
+    ins = tab.inspector
+    ins.open(row.id)
+    assert ins.latents and ins.latents[0].shape[1:] == (48, 64, 3)
+    ins.timeline.slider.value = ins.replay.num_steps // 3
+    _wait(lambda: "predicted latent state" in ins.plan_info.content, 20, "a predicted image beside the frame")
+    page.get_by_role("tab", name="Inspect").click()
+    _shot(page, shots / "inspect-trained.png")
+
+
 def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     tab = _tab(studio)
     ins = tab.inspector
@@ -378,7 +416,10 @@ def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     first = _wait(
         lambda: ins.rollout.options[0] if "✘" in ins.rollout.options[0] else None, 10, "failures listed"
     )
-    failed = [r for r in studio.store.catalog.rollouts(success=False)]
+    assert all("✘" in o for o in ins.rollout.options), "only failures"
+    ins.checkpoint.value = "oracle"
+    failed = [r for r in studio.store.catalog.rollouts(success=False) if r.checkpoint_id is None]
+    first = ins.rollout.options[0]
     assert first.startswith(failed[0].id) and failed[0].failure_stage in first
     page.get_by_role("button", name="Open", exact=True).click()
     page.get_by_text("Stages:").first.wait_for(timeout=60_000)

@@ -91,7 +91,6 @@ class InspectorPanel:
         self.open(rid)
 
     def open(self, rollout_id: str) -> None:
-        from studio.backend.plan_job import decode_latents
         from studio.backend.replay import EpisodeReplay
 
         store = self.app.store
@@ -112,19 +111,18 @@ class InspectorPanel:
         events = []
         if r.path and (Path(r.path) / "events.json").is_file():
             events = json.loads((Path(r.path) / "events.json").read_text())
+        for i in range(self.n_plans):
+            images = self.plans.get(f"plan{i}_latent_images")
+            if images is not None and len(images):
+                self.latents[i] = images
         checkpoint = (r.extra or {}).get("checkpoint")
         note = ""
-        if checkpoint and checkpoint != "oracle":
-            for i in range(self.n_plans):
-                pooled = self.plans.get(f"plan{i}_pooled_states")
-                if pooled is not None and Path(checkpoint).is_file():
-                    images = decode_latents(checkpoint, pooled)
-                    if images is not None:
-                        self.latents[i] = images
-            if not self.latents:
-                note = " No decoded latent images (no latent decoder next to the checkpoint)."
-        elif not checkpoint or checkpoint == "oracle":
-            note = " The oracle has no latent predictions."
+        if not self.latents:
+            note = (
+                " The oracle has no latent predictions."
+                if not checkpoint or checkpoint == "oracle"
+                else " No decoded latent images were stored (the checkpoint had no latent decoder)."
+            )
         meta = self.replay.meta
         self._token = self.tab.set_mode("replay", f"Replaying rollout `{r.id}` ({r.task}).")
         view = self.tab.view
