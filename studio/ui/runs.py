@@ -214,3 +214,36 @@ class RunRegistry:
             tmp.write_text(json.dumps({"id": checkpoint_id}))
             os.replace(tmp, path)
         return choices[checkpoint_id]
+
+    # ------------------------------------------------------------------ the catalog's runs and checkpoints
+    def register_run(self, catalog, run_id: str, *, status: str = "queued", scene: str | None = None,
+                     config: dict | None = None) -> None:  # fmt: skip
+        """Add a run started from the browser to the store's catalog (once)."""
+        from studio.data.catalog import RunRecord
+
+        if any(r.id == run_id for r in catalog.runs()):
+            return
+        with catalog.transaction():
+            catalog.add_run(RunRecord(id=run_id, status=status, name=run_id, scene=scene, config=config or {},
+                                      path=str(self.runs_dir / run_id)))  # fmt: skip
+
+    def register_checkpoint(self, catalog, ck: Checkpoint) -> None:
+        """Make ``ck`` known to the catalog (rollouts refer to their checkpoint by id), with its run."""
+        from studio.data.catalog import CheckpointRecord, RunRecord
+
+        if ck.is_oracle:
+            return
+        run_id = ck.run_id or "shipped"
+        known_runs = {r.id for r in catalog.runs()}
+        if any(c.id == ck.id for c in catalog.checkpoints(run_id if run_id in known_runs else None)):
+            return
+        info = next((r for r in self.runs() if r.id == ck.run_id), None)
+        status = {"finished": "done", "cancelled": "cancelled"}.get(info.ended if info else "", "running")
+        with catalog.transaction():
+            if run_id not in known_runs:
+                name = "policies shipped with the studio" if ck.run_id is None else run_id
+                catalog.add_run(RunRecord(id=run_id, status="done" if ck.run_id is None else status, name=name,
+                                          path=str(Path(ck.path).parent)))  # fmt: skip
+            catalog.add_checkpoint(CheckpointRecord(id=ck.id, run_id=run_id, step=info.step if info else 0,
+                                                    path=ck.path, val_loss=info.best_val if info else None,
+                                                    is_best=ck.id.endswith("/best")))  # fmt: skip

@@ -328,6 +328,11 @@ def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
     assert (run / "last.pt").is_file() and json.loads((run / "spec.json").read_text())["steps"] == 4
     assert sorted(json.loads((run / "split.json").read_text())["train"]) == sorted(TRAIN_TASKS)
     assert any(c.run_id == job for c in studio.runs.checkpoints())
+    _wait(
+        lambda: [r for r in studio.store.catalog.runs() if r.id == job and r.status == "done"],
+        10,
+        "the run row",
+    )
     assert train.loss_plot.data[0][-1] == 4 and np.isfinite(train.loss_plot.data[2]).all()
 
 
@@ -395,10 +400,15 @@ def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots
     previous = im.rollout.job
     page.get_by_role("button", name="Execute", exact=True).click()
     _wait(lambda: im.rollout.job != previous, 30, "the new rollout")
-    result = _wait(lambda: im.rollout.result if im.rollout.terminal else None, 180, "the rollout to finish")
-    assert im.rollout.state == "succeeded" and "success" in result
+    _wait(
+        lambda: im.rollout.terminal and (im.rollout.result or im.rollout.state != "succeeded"), 240, "the end"
+    )
+    assert im.rollout.state == "succeeded", im.rollout.status.reason
+    result = im.rollout.result
     (row,) = [r for r in studio.store.catalog.rollouts() if r.id == result["rollout_id"]]
     assert row.checkpoint_id == f"{run.name}/last" and row.extra["checkpoint"] == str(run / "last.pt")
+    (ck,) = studio.store.catalog.checkpoints(run.name)
+    assert ck.id == row.checkpoint_id and ck.path == str(run / "last.pt")
     ins = tab.inspector
     ins.open(row.id)
     assert ins.latents and ins.latents[0].shape[1:] == (48, 64, 3)

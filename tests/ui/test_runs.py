@@ -62,3 +62,34 @@ def test_active_checkpoint_defaults_persists_and_falls_back(tmp_path):
     assert reg.active().id == "default/osvi-pick-place", "a vanished checkpoint falls back to the default"
     with pytest.raises(KeyError, match="no checkpoint"):
         reg.set_active("train-zzz/best")
+
+
+def test_checkpoints_are_registered_in_the_catalog_before_rollouts_refer_to_them(tmp_path):
+    from studio.data.catalog import Catalog, RolloutRecord
+
+    _run(tmp_path, "train-a")
+    policies = tmp_path / "policies"
+    policies.mkdir()
+    (policies / "shipped.pt").write_bytes(b"x")
+    reg = RunRegistry(tmp_path, policy_dir=policies)
+    with Catalog(tmp_path / "catalog.sqlite") as cat:
+        ck = {c.id: c for c in reg.checkpoints()}
+        for cid in ("train-a/best", "default/shipped", "train-a/best"):  # registering twice is harmless
+            reg.register_checkpoint(cat, ck[cid])
+        reg.register_checkpoint(cat, ck[ORACLE])  # the oracle is no checkpoint
+        rows = {c.id: c for c in cat.checkpoints()}
+        assert set(rows) == {"train-a/best", "default/shipped"}
+        assert (
+            rows["train-a/best"].run_id == "train-a"
+            and rows["train-a/best"].is_best
+            and rows["train-a/best"].step == 3
+        )
+        assert {r.id: r.status for r in cat.runs()} == {"train-a": "done", "shipped": "done"}
+        with cat.transaction():
+            cat.add_rollout(
+                RolloutRecord(
+                    id="r-1", task="pick_place/cube->red", success=True, checkpoint_id="train-a/best"
+                )
+            )
+        reg.register_run(cat, "train-b", scene="pick_place")
+        assert {r.id: r.status for r in cat.runs()}["train-b"] == "queued"

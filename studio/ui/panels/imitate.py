@@ -202,6 +202,7 @@ class ImitatePanel:
         replans = int(self.replans.value)
         spec = {"checkpoint": ck.path, "checkpoint_id": ck.id, "expert_episode_id": demo, "task": task,
                 "seed": seed, "replans": replans, "robot": self._robot(task), "speed": SPEEDS[self.speed.value]}  # fmt: skip
+        self.app.runs.register_checkpoint(self.app.store.catalog, ck)  # the stored rollout refers to it
         tracked = self.app.jobs.submit("rollout", spec, started_by=self.tab.client.client_id)
         self.outcome.content = ""
         self.attach(tracked)

@@ -130,6 +130,7 @@ class TrainPanel:
             "scene": str(run_dir / "split.json"),
         }
         (run_dir / "spec.json").write_text(json.dumps(spec, indent=1))
+        self.app.runs.register_run(self.app.store.catalog, job, scene=split.scene, config=spec)
         self.app.jobs.submit("train", spec, started_by=self.tab.client.client_id, job=job)
         self.job_id = job
         self.state.content = f"Queued `{job}` — waiting for a trainer…"
@@ -205,6 +206,9 @@ class TrainPanel:
             )
         elif p is not None and p.message:
             parts.append(p.message)
+        if st is not None and st.terminal and self._shown.get("catalog_done") != tracked.job:
+            self._shown["catalog_done"] = tracked.job
+            self._record_end(tracked)
         if tracked.result is not None:
             r = tracked.result
             best = r.get("best_val_loss")
@@ -215,6 +219,15 @@ class TrainPanel:
             self._shown["state"] = text
             self.state.content = text
         self._show_curves(tracked)
+
+    def _record_end(self, tracked) -> None:
+        """The catalog's run row follows the job's end (rows of runs started elsewhere are left alone)."""
+        catalog = self.app.store.catalog
+        if not any(r.id == tracked.job for r in catalog.runs()):
+            return
+        status = {"succeeded": "done", "failed": "failed", "cancelled": "cancelled"}[tracked.status.state]
+        catalog.update_run(tracked.job, status=status, finished=tracked.status.updated_at,
+                           error=tracked.status.reason if status == "failed" else None)  # fmt: skip
 
     def _show_curves(self, tracked) -> None:
         run_dir = tracked.spec.get("run_dir")
