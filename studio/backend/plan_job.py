@@ -104,18 +104,21 @@ def run_plan_job(ctx) -> dict[str, Any]:
         raise ValueError(f"checkpoint {checkpoint} does not exist on worker {ctx.worker}")
     store = _cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     ctx.progress(0, 3, message="resetting the scene")
-    env = _cached(("env", task.scene, robot), lambda: make_env(task.scene, robot))
-    env.reset(task.name, int(spec["seed"]))
-    frame = env.render("external")
-    cam = env.camera_model("external")
-    expert = store.load_frames(str(spec["expert_episode_id"]))
-    ctx.progress(1, 3, message="planning")
-    planner = load_planner(checkpoint, env)
-    if hasattr(planner, "clear_cache"):
-        planner.clear_cache()
-    t0 = time.perf_counter()
-    plan = planner.plan(expert, frame, cam.K, cam.T_world_cam)
-    seconds = time.perf_counter() - t0
+    env = make_env(task.scene, robot)  # this job's own: its EGL context belongs to this thread
+    try:
+        env.reset(task.name, int(spec["seed"]))
+        frame = env.render("external")
+        cam = env.camera_model("external")
+        expert = store.load_frames(str(spec["expert_episode_id"]))
+        ctx.progress(1, 3, message="planning")
+        planner = load_planner(checkpoint, env)
+        if hasattr(planner, "clear_cache"):
+            planner.clear_cache()
+        t0 = time.perf_counter()
+        plan = planner.plan(expert, frame, cam.K, cam.T_world_cam)
+        seconds = time.perf_counter() - t0
+    finally:
+        env.close()
     n_seen = int(getattr(getattr(planner, "cfg", None), "n_expert_frames", 10))
     arrays = {
         "waypoints_world": np.asarray(plan.waypoints_world, dtype=np.float64),

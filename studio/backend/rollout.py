@@ -264,72 +264,77 @@ def run_rollout_job(ctx) -> dict:
     if ctx.data_dir is None:
         raise ValueError("rollout jobs need a worker started with --data-dir (the store with the demonstration)")
     store = _cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
-    env = _cached(("env", task.scene, robot), lambda: make_env(task.scene, robot))
-    planner = load_planner(str(spec["checkpoint"]), env)
-    if hasattr(planner, "clear_cache"):
-        planner.clear_cache()
-    expert_frames = store.load_frames(str(spec["expert_episode_id"]))
-    speed = float(spec.get("speed", 1.0))
-    if speed < 0:
-        raise ValueError(f"rollout job speed must be >= 0, got {speed}")
-    total_ticks = [0]
-    last_pose = [0.0]
-    seq = [0]
+    # One simulator per job, closed by the job's own thread: an EGL context current in one (still living)
+    # thread cannot be made current in another, so a simulator shared across job threads fails to render.
+    env = make_env(task.scene, robot)
+    try:
+        planner = load_planner(str(spec["checkpoint"]), env)
+        if hasattr(planner, "clear_cache"):
+            planner.clear_cache()
+        expert_frames = store.load_frames(str(spec["expert_episode_id"]))
+        speed = float(spec.get("speed", 1.0))
+        if speed < 0:
+            raise ValueError(f"rollout job speed must be >= 0, got {speed}")
+        total_ticks = [0]
+        last_pose = [0.0]
+        seq = [0]
 
-    def on_event(kind: str, info: dict) -> None:
-        if kind == "waypoint":
-            msg = f"waypoint {info['index'] + 1} of {info['total']}"
-        elif kind == "grasp_correction":
-            msg = f"grasp correction {info['iteration']}/3" + ("" if info.get("found") else " (nothing seen)")
-        elif kind == "replanning":
-            msg = f"re-planning ({info['attempt']} of {info['of']})"
-        elif kind == "planning":
-            msg = "planning"
-        elif kind == "planned":
-            # The plan's waypoints ride along as metrics (wp<i>_x/y/z/g) so viewers can draw every re-plan live.
-            wps = np.asarray(info["waypoints"], dtype=float).reshape(-1, 4)
-            metrics = {f"wp{i}_{c}": float(v) for i, row in enumerate(wps) for c, v in zip("xyzg", row)}
-            ctx.progress(total_ticks[0], message=f"planned ({info['attempt'] + 1})", **metrics)
-            return
-        elif kind == "outcome":
-            msg = "success" if info["success"] else f"failed at {info['failure_stage']}"
-        else:
-            return
-        ctx.progress(total_ticks[0], message=msg)
+        def on_event(kind: str, info: dict) -> None:
+            if kind == "waypoint":
+                msg = f"waypoint {info['index'] + 1} of {info['total']}"
+            elif kind == "grasp_correction":
+                msg = f"grasp correction {info['iteration']}/3" + ("" if info.get("found") else " (nothing seen)")
+            elif kind == "replanning":
+                msg = f"re-planning ({info['attempt']} of {info['of']})"
+            elif kind == "planning":
+                msg = "planning"
+            elif kind == "planned":
+                # The plan's waypoints ride along as metrics (wp<i>_x/y/z/g) so viewers can draw every re-plan live.
+                wps = np.asarray(info["waypoints"], dtype=float).reshape(-1, 4)
+                metrics = {f"wp{i}_{c}": float(v) for i, row in enumerate(wps) for c, v in zip("xyzg", row)}
+                ctx.progress(total_ticks[0], message=f"planned ({info['attempt'] + 1})", **metrics)
+                return
+            elif kind == "outcome":
+                msg = "success" if info["success"] else f"failed at {info['failure_stage']}"
+            else:
+                return
+            ctx.progress(total_ticks[0], message=msg)
 
-    wall_start: list[float] = []
+        wall_start: list[float] = []
 
-    def on_tick() -> None:
-        total_ticks[0] += 1
-        now = _time.monotonic()
-        if speed > 0:  # paced for watching: simulated time runs at `speed` x wall time
-            if not wall_start:
-                wall_start.append(now - env.data.time / speed)
-            ahead = wall_start[0] + env.data.time / speed - now
-            if ahead > 0:
-                ctx.wait_cancelled(ahead)
-                now = _time.monotonic()
-        if now - last_pose[0] >= 1 / 30:
-            last_pose[0] = now
-            seq[0] += 1
-            ctx.poses(pose_frame(env.data, seq=seq[0], step=env.steps, ack_seq=0, ee_pos=env.ee_pos,
-                                 gripper=env.gripper_cmd))
+        def on_tick() -> None:
+            total_ticks[0] += 1
+            now = _time.monotonic()
+            if speed > 0:  # paced for watching: simulated time runs at `speed` x wall time
+                if not wall_start:
+                    wall_start.append(now - env.data.time / speed)
+                ahead = wall_start[0] + env.data.time / speed - now
+                if ahead > 0:
+                    ctx.wait_cancelled(ahead)
+                    now = _time.monotonic()
+            if now - last_pose[0] >= 1 / 30:
+                last_pose[0] = now
+                seq[0] += 1
+                ctx.poses(pose_frame(env.data, seq=seq[0], step=env.steps, ack_seq=0, ee_pos=env.ee_pos,
+                                     gripper=env.gripper_cmd))
 
-    out = run_rollout(env, planner, expert_frames, task.name, int(spec["seed"]), replans=replans,
-                      on_event=on_event, on_tick=on_tick, should_stop=lambda: ctx.cancelled)
-    ctx.raise_if_cancelled()
-    checkpoint = str(spec["checkpoint"])
-    if checkpoint != "oracle":
-        # Decoded here, where the model lives, so that viewers (the UI) never need torch.
-        from studio.backend.plan_job import decode_latents
+        out = run_rollout(env, planner, expert_frames, task.name, int(spec["seed"]), replans=replans,
+                          on_event=on_event, on_tick=on_tick, should_stop=lambda: ctx.cancelled)
+        ctx.raise_if_cancelled()
+        checkpoint = str(spec["checkpoint"])
+        if checkpoint != "oracle":
+            # Decoded here, where the model lives, so that viewers (the UI) never need torch.
+            from studio.backend.plan_job import decode_latents
 
-        for p in out.plans:
-            if p.pooled_states is not None:
-                p.latent_images = decode_latents(checkpoint, p.pooled_states)
-    checkpoint_id = spec.get("checkpoint_id") or (None if checkpoint == "oracle" else Path(checkpoint).stem)
-    record = store_rollout(store, out, expert_episode_id=str(spec["expert_episode_id"]),
-                           checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
-                           extra={"job": ctx.job, "checkpoint": checkpoint})
-    return {"rollout_id": record.id, "success": out.success, "failure_stage": out.failure_stage,
-            "replans": out.replans, "planning_time_s": out.planning_time_s, "episode_id": record.episode_id,
-            "stages": out.stages}
+            for p in out.plans:
+                if p.pooled_states is not None:
+                    p.latent_images = decode_latents(checkpoint, p.pooled_states)
+        checkpoint_id = spec.get("checkpoint_id") or (None if checkpoint == "oracle" else Path(checkpoint).stem)
+        record = store_rollout(store, out, expert_episode_id=str(spec["expert_episode_id"]),
+                               checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
+                               extra={"job": ctx.job, "checkpoint": checkpoint})
+        return {"rollout_id": record.id, "success": out.success, "failure_stage": out.failure_stage,
+                "replans": out.replans, "planning_time_s": out.planning_time_s, "episode_id": record.episode_id,
+                "stages": out.stages}
+    finally:
+        env.close()
