@@ -151,9 +151,8 @@ class StudioTab:
         gizmo = getattr(getattr(self, "teleop", None), "gizmo", None)
         if gizmo is not None:
             gizmo.visible = mode == "teleop"
-        for name in ("plan", "path", "rollout"):
-            if mode == "teleop":
-                self.view.clear_overlay(name)
+        for name in ("plan", "path"):  # a new view starts clean; panels draw what belongs to it
+            self.view.clear_overlay(name)
         return self._token
 
     @property

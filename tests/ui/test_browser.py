@@ -406,6 +406,7 @@ def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots
     _wait(lambda: f"{run.name}/last" in im.policy.content, 20, "the trained policy to be active")
     _click(page.get_by_role("button", name="Plan", exact=True))
     _wait(lambda: im.latent_strip.visible, 120, "the decoded latent trajectory")
+    page.get_by_text("Predicted latent trajectory").first.scroll_into_view_if_needed(timeout=30_000)
     _shot(page, shots / "imitate-plan-trained.png")
     assert im.plan_job.result["latent_images"] > 0 and im.plan_wps.shape == (5, 4)
     assert np.isfinite(im.plan_wps).all()

@@ -163,6 +163,7 @@ class InspectorPanel:
         actual = self.frames[fi]
         k = self.plan_at(step)
         image = thumbnail(actual, 150)
+        label = "Camera"
         text = f"Step {step} of {self.replay.num_steps - 1}; camera frame {fi + 1} of {len(self.frames)}."
         if k is not None:
             wps = self.plans.get(f"plan{k}_waypoints_world")
@@ -176,8 +177,11 @@ class InspectorPanel:
                 frac = (step - int(starts[k])) / max(1, end - int(starts[k]))
                 j = int(np.clip(round(frac * (len(lat) - 1)), 0, len(lat) - 1))
                 image = side_by_side(actual, lat[j], height=150)
+                label = "Camera (left) · predicted latent state (right)"
                 text += f" Left: actual frame; right: predicted latent state {j + 1} of {len(lat)}."
         self.image.image = image
+        if self.image.label != label:
+            self.image.label = label
         self.tab.view.set_camera_image(actual)
         self.plan_info.content = text
 
