@@ -148,9 +148,9 @@ class StudioTab:
         self.mode = mode
         self.view_note.content = note
         self.back_to_teleop.visible = mode != "teleop"
-        gizmo = getattr(getattr(self, "teleop", None), "gizmo", None)
-        if gizmo is not None:
-            gizmo.visible = mode == "teleop"
+        teleop = getattr(self, "teleop", None)
+        if teleop is not None:
+            teleop.on_mode(mode)
         for name in ("plan", "path"):  # a new view starts clean; panels draw what belongs to it
             self.view.clear_overlay(name)
         return self._token

@@ -52,6 +52,7 @@ class TeleopPanel:
         self._token = 0
         self.drags = 0
         self._lost = False
+        self._streaming = False
         gui = tab.client.gui
         gui.add_markdown(HINTS)
         scenes = tuple(s for s in SCENES if scene_tasks(s))
@@ -129,7 +130,7 @@ class TeleopPanel:
         self.info = self.client.open(scene, robot, task, seed)
         self._recording = False
         self._set_recording_ui(False)
-        self.client.stream_frames(PREVIEW_HZ, quality=70)
+        self._streaming = False  # a (re-)opened session streams nothing until the live view asks
         self.show_live()
         self.status.content = f"**{task}** with the **{robot}**, seed {seed} — ready. Drag the gizmo."
 
@@ -161,6 +162,19 @@ class TeleopPanel:
         if frame is not None:
             self.tab.push_poses(self._token, frame.poses_array())
         self._place_gizmo(np.asarray(frame.ee_pos) if frame is not None else None)
+
+    def on_mode(self, mode: str) -> None:
+        """The tab's scene changed what it shows: the gizmo and the camera stream only serve the live view."""
+        live = mode == "teleop"
+        if self.gizmo is not None:
+            self.gizmo.visible = live
+        client = self.client
+        if client is not None and live != self._streaming:
+            self._streaming = live
+            try:
+                client.stream_frames(PREVIEW_HZ if live else 0.0, quality=70)
+            except bus.BusError:
+                self._streaming = not live  # try again at the next switch
 
     def _place_gizmo(self, ee: np.ndarray | None) -> None:
         if ee is None:
