@@ -106,6 +106,15 @@ def _init_worker(checkpoint: str, data_dir: str, scene: str, robot: str, threads
     _W["checkpoint"] = checkpoint
 
 
+def _close_worker() -> None:
+    env, store = _W.pop("env", None), _W.pop("store", None)
+    _W.clear()
+    if env is not None:
+        env.close()
+    if store is not None:
+        store.close()
+
+
 def _expert_choices(store, task: str) -> list[str]:
     ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=("sawyer", "human"))]
     if not ids:
@@ -124,6 +133,12 @@ def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None,
     if hasattr(planner, "clear_cache"):
         planner.clear_cache()
     out = run_rollout(env, planner, expert_frames, job.task, job.env_seed, replans=replan)
+    if keep and _W["checkpoint"] != "oracle":
+        from studio.backend.plan_job import decode_latents
+
+        for p in out.plans:  # what the world model imagined, as images, for the inspector
+            if p.pooled_states is not None:
+                p.latent_images = decode_latents(_W["checkpoint"], p.pooled_states)
     record = store_rollout(store, out, expert_episode_id=expert_id, checkpoint_id=checkpoint_id, eval_id=eval_id,
                            keep=keep, extra={"index": job.index})
     rollout_id = record.id
@@ -165,6 +180,27 @@ def default_robot(scene: str) -> str:
     return "sawyer" if scene == "metaworld" else "panda"
 
 
+def register_checkpoint(data_dir, checkpoint: str | os.PathLike) -> str:
+    """The catalog id of a checkpoint file, registering it (and its run) on first use.
+
+    A policy shipped with the package gets the id the studio's UI gives it (``default/<name>``).
+    """
+    from studio.data.catalog import Catalog
+    from studio.data.paths import CATALOG_NAME
+    from studio.model.train import load_checkpoint
+
+    path = Path(checkpoint).resolve()
+    if not path.is_file():
+        raise FileNotFoundError(f"no checkpoint file {str(checkpoint)!r}")
+    step = int(load_checkpoint(path).get("step", 0))
+    shipped = path.parent == Path(__file__).resolve().parents[1] / "policies"
+    with Catalog(Path(data_dir) / CATALOG_NAME) as catalog:
+        return catalog.ensure_checkpoint_file(
+            path, step=step, checkpoint_id=f"default/{path.stem}" if shipped else None,
+            run_id="shipped" if shipped else None,
+        )
+
+
 def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan: int = 0, workers: int = 1,
              data_dir=None, robot: str | None = None, keep: bool = True, progress: bool = True) -> dict:
     """Run the evaluation and return the report (also written into the catalog as rollouts)."""
@@ -178,7 +214,7 @@ def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan
     robot = robot or default_robot(scene)
     root = str(resolve_data_dir(data_dir))
     eval_id = f"eval-{uuid.uuid4().hex[:10]}"
-    checkpoint_id = None if checkpoint == "oracle" else Path(checkpoint).stem
+    checkpoint_id = None if checkpoint == "oracle" else register_checkpoint(root, checkpoint)
     jobs = make_jobs(tasks, episodes, seed)
     started = time.perf_counter()
     rows: list[RolloutSummary] = []
@@ -191,10 +227,13 @@ def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan
         bar = tqdm(total=len(jobs), desc="rollouts", unit="rollout", file=sys.stderr)
     if workers == 1:
         _init_worker(checkpoint, root, scene, robot, threads)
-        for job in jobs:
-            rows.append(_run_job(job, replan, eval_id, checkpoint_id, keep))
-            if bar:
-                bar.update(1)
+        try:
+            for job in jobs:
+                rows.append(_run_job(job, replan, eval_id, checkpoint_id, keep))
+                if bar:
+                    bar.update(1)
+        finally:
+            _close_worker()  # the renderer's GL context must not outlive the call (a crash at exit otherwise)
     else:
         # Small chunks keep the progress bar moving while each worker keeps its env and model loaded.
         small = [jobs[i : i + 4] for i in range(0, len(jobs), 4)]

@@ -18,7 +18,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -329,7 +328,11 @@ def run_rollout_job(ctx) -> dict:
             for p in out.plans:
                 if p.pooled_states is not None:
                     p.latent_images = decode_latents(checkpoint, p.pooled_states)
-        checkpoint_id = spec.get("checkpoint_id") or (None if checkpoint == "oracle" else Path(checkpoint).stem)
+        checkpoint_id = spec.get("checkpoint_id")
+        if checkpoint != "oracle" and not checkpoint_id:
+            from studio.backend.evaluation import register_checkpoint
+
+            checkpoint_id = register_checkpoint(store.root, checkpoint)
         record = store_rollout(store, out, expert_episode_id=str(spec["expert_episode_id"]),
                                checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
                                extra={"job": ctx.job, "checkpoint": checkpoint})

@@ -75,19 +75,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
 
 
-def preload_llvm_users() -> None:
-    """Import triton (torch's kernel compiler, when installed) before anything creates an EGL context.
-
-    Triton and Mesa's software EGL both carry LLVM; importing triton after MuJoCo has rendered through EGL
-    segfaults the process, so a sim worker that had served a teleop session or planned once would die on
-    the first trained checkpoint it loads (torchvision imports triton through torch._dynamo).
-    """
-    try:
-        import triton  # noqa: F401
-    except Exception:  # not installed (CPU-only wheels) or broken: nothing to protect against
-        pass
-
-
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=args.log_level, format=f"%(asctime)s %(levelname)s worker {args.kind}: %(message)s"
@@ -120,7 +107,9 @@ def run(args: argparse.Namespace) -> int:
     runner = JobRunner(session, presence, handlers, data_dir=Path(args.data_dir) if args.data_dir else None)
     sim_host = destination = None
     if args.kind == "sim":
-        preload_llvm_users()
+        from studio.sim.rendering import preload_llvm_users
+
+        preload_llvm_users()  # before any EGL context: see studio.sim.rendering
         from studio.backend.sim_worker import SimWorker
         from studio.backend.teleop import TeleopConfig
 

@@ -10,16 +10,14 @@ than MuJoCo's defaults on a CPU.
 
 from __future__ import annotations
 
-import atexit
 import os
-import weakref
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import mujoco
 import numpy as np
 
-from studio.sim import robots, scenes
+from studio.sim import rendering, robots, scenes
 from studio.sim.camera import CameraModel
 from studio.sim.ik import make_controller
 from studio.sim.tasks import Task, get_task
@@ -32,25 +30,6 @@ _FINGER_BODIES = {
     "panda": ("panda0_leftfinger", "panda0_rightfinger"),
     "sawyer": ("rightpad", "leftpad"),
 }
-
-
-_LIVE_ENVS: weakref.WeakSet = weakref.WeakSet()
-_CLEANUP_REGISTERED = False
-
-
-def _close_all() -> None:
-    # Free GL contexts before MuJoCo's own exit hook tears the EGL display down.
-    for env in list(_LIVE_ENVS):
-        env.close()
-
-
-def _register_cleanup() -> None:
-    # atexit runs hooks last-in first-out: registering after MuJoCo created its display (at the first
-    # renderer) makes ours run before MuJoCo's display teardown.
-    global _CLEANUP_REGISTERED
-    if not _CLEANUP_REGISTERED:
-        atexit.register(_close_all)
-        _CLEANUP_REGISTERED = True
 
 
 class SimEnv:
@@ -97,7 +76,7 @@ class SimEnv:
         self.gripper_cmd = 0.0
         self.target = np.zeros(3)
         self.steps = 0
-        _LIVE_ENVS.add(self)
+        rendering.track(self)
 
     # ------------------------------------------------------------------ episode
     def reset(self, task: str | Task, seed: int) -> None:
@@ -209,14 +188,7 @@ class SimEnv:
         key = (height, width, depth)
         r = self._renderers.get(key)
         if r is None:
-            r = mujoco.Renderer(self.model, height, width)
-            if depth:
-                r.enable_depth_rendering()
-            r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
-            r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-            r.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = False
-            self._renderers[key] = r
-            _register_cleanup()
+            r = self._renderers[key] = rendering.new_renderer(self.model, height, width, depth)
         return r
 
     def render(self, camera: str = "external", size: tuple[int, int] | None = None) -> np.ndarray:

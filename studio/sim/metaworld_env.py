@@ -49,9 +49,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco
 import numpy as np
 
-from studio.sim import robots
+from studio.sim import rendering, robots
 from studio.sim.camera import CameraModel
-from studio.sim.env import _LIVE_ENVS, _register_cleanup
 from studio.sim.metaworld_tasks import SCENE, MetaWorldTask, get_metaworld_task
 from studio.sim.scenes import SceneInfo
 
@@ -144,7 +143,7 @@ class MetaWorldEnv:
         self._last_action = np.zeros(4)
         self._prev_obs: np.ndarray | None = None
         self._cur_obs: np.ndarray | None = None
-        _LIVE_ENVS.add(self)
+        rendering.track(self)
 
     # ------------------------------------------------------------------ task loading
     def _load(self, task: MetaWorldTask) -> None:
@@ -389,16 +388,7 @@ class MetaWorldEnv:
         key = (height, width, depth)
         r = self._renderers.get(key)
         if r is None:
-            vis = self.model.vis.global_
-            vis.offwidth, vis.offheight = max(vis.offwidth, width), max(vis.offheight, height)
-            r = mujoco.Renderer(self.model, height, width)
-            if depth:
-                r.enable_depth_rendering()
-            r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
-            r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-            r.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = False
-            self._renderers[key] = r
-            _register_cleanup()
+            r = self._renderers[key] = rendering.new_renderer(self.model, height, width, depth)
         return r
 
     def render(self, camera: str = "external", size: tuple[int, int] | None = None) -> np.ndarray:

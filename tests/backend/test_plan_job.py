@@ -104,7 +104,7 @@ def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
 
 
 def test_a_sim_worker_survives_loading_the_model_after_rendering(hub, workers):
-    """Importing triton after Mesa's EGL is up segfaults; sim workers import it first (worker.preload_llvm_users)."""
+    """Importing triton after Mesa's EGL is up segfaults; sim workers import it first (studio.sim.rendering.preload_llvm_users)."""
     workers.start("sim", "sim-llvm", handlers=("rtm=render_then_model:run",))
     wait_worker(hub.directory, "sim-llvm")
     client = JobClient(hub.session)

@@ -93,3 +93,39 @@ def test_evaluation_is_deterministic_and_stores_rollouts(tmp_path):
 def test_missing_demonstrations_give_a_clear_error(tmp_path):
     with pytest.raises(RuntimeError, match="no expert demonstration"):
         evaluate("oracle", ["pick_place/bar->yellow"], 1, seed=0, data_dir=tmp_path, progress=False)
+
+
+def _tiny_checkpoint(path):
+    """An untrained small model in the training checkpoint format (planning quality is not the point here)."""
+    import torch
+
+    from studio.model.config import ModelConfig, RunConfig, TrainConfig
+    from studio.model.osvi_wm import OSVIWM
+    from studio.model.train import CHECKPOINT_FORMAT
+
+    torch.manual_seed(0)
+    model = ModelConfig(image_size=(48, 64), n_expert_frames=4, n_agent_frames=3, encoder_stages=2,
+                        state_channels=16, action_blocks=1, action_heads=2, action_attn_dim=16, action_mlp_dim=32,
+                        wm_blocks=1, wm_heads=2, wm_width=32, wm_mlp_dim=64, head_hidden=64)
+    run = RunConfig(model=model, train=TrainConfig())
+    path.parent.mkdir(parents=True)
+    torch.save({"format": CHECKPOINT_FORMAT, "config": run.to_dict(), "step": 7,
+                "model": OSVIWM(model).state_dict()}, path)
+    return path
+
+
+def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
+    root = tmp_path / "data"
+    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue"], episodes=1,
+                          data_dir=str(root), progress=False, image_size=(120, 160)))
+    ck = _tiny_checkpoint(tmp_path / "run-a" / "best.pt")
+    for _ in range(2):  # the second evaluation finds the registration made by the first
+        report = evaluate(str(ck), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False)
+        assert report["rows"][0]["planning_time_s"] > 0
+    with EpisodeStore(root) as store:
+        rows = store.catalog.rollouts()
+        assert [r.checkpoint_id for r in rows] == ["run-a/best", "run-a/best"]
+        (record,) = store.catalog.checkpoints("run-a")
+        assert record.path == str(ck.resolve()) and record.step == 7
+    with pytest.raises(FileNotFoundError, match="no checkpoint file"):
+        evaluate(str(tmp_path / "missing.pt"), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False)
