@@ -16,6 +16,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("studio.bench", "run a benchmark and print one JSON object"),
     "train": ("studio.model.train_command", "train OSVI-WM on recorded episodes (resumable, torchrun-ready)"),
     "train-decoder": ("studio.model.decoder_command", "train the latent image decoder of a trained model"),
+    "export-policy": ("studio.model.policy_export", "write a small inference file from a training checkpoint"),
     "collect": ("studio.data.collect", "collect scripted expert/agent episodes in parallel (resumable)"),
     "import-video": ("studio.data.video_import", "store a human demonstration video as an expert episode"),
     "export": ("studio.data.export_command", "export episodes as a LeRobot v3.0 dataset"),

@@ -1,0 +1,73 @@
+"""`studio export-policy`: turn a training checkpoint (and its latent decoder) into a small inference file.
+
+    studio export-policy RUN_DIR/best.pt OUT.pt [--decoder DECODER_DIR/best.pt] [--fp32]
+
+The policy file keeps everything planning needs — the checkpoint format, full configuration, dataset
+fingerprint, trained tasks, step — and drops the optimiser and scheduler state (two thirds of a training
+checkpoint). Weights are stored as float16 by default, halving the file again; they are cast back to
+float32 when loaded (``Planner.load`` copies them into float32 parameters), which moves planned waypoints
+by well under a millimetre (``tests/model/test_policy_export.py`` measures it). The decoder, when given, is
+written next to it as ``OUT.decoder.pt``, where the studio looks for it (``plan_job.find_decoder``).
+This is how ``studio/policies/`` is produced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from studio.model.run_files import atomic_save
+
+#: Training-only entries a policy file does not carry.
+TRAINING_ONLY = ("optimizer", "scheduler")
+
+
+def _weights(state: dict[str, torch.Tensor], half: bool) -> dict[str, torch.Tensor]:
+    return {k: v.half() if half and v.is_floating_point() else v for k, v in state.items()}
+
+
+def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Path | None = None,
+                  half: bool = True) -> dict[str, int]:  # fmt: skip
+    """Write the policy (and decoder) files; returns their sizes in bytes."""
+    from studio.model.train import load_checkpoint
+    from studio.model.train_decoder import DECODER_FORMAT
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    ckpt: dict[str, Any] = load_checkpoint(checkpoint)
+    policy = {k: v for k, v in ckpt.items() if k not in TRAINING_ONLY}
+    policy["model"] = _weights(ckpt["model"], half)
+    policy["exported_from"] = str(checkpoint)
+    atomic_save(policy, out)
+    sizes = {"policy_bytes": out.stat().st_size}
+    if decoder is not None:
+        dec = torch.load(decoder, map_location="cpu", weights_only=False)
+        if not isinstance(dec, dict) or dec.get("format") != DECODER_FORMAT:
+            raise ValueError(f"{decoder} is not a latent-decoder checkpoint (format {DECODER_FORMAT})")
+        small = {k: v for k, v in dec.items() if k not in TRAINING_ONLY}
+        small["decoder"] = _weights(dec["decoder"], half)
+        dec_out = out.with_name(f"{out.stem}.decoder.pt")
+        atomic_save(small, dec_out)
+        sizes["decoder_bytes"] = dec_out.stat().st_size
+    return sizes
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("checkpoint", help="training checkpoint (RUN_DIR/best.pt or last.pt)")
+    parser.add_argument("out", help="policy file to write, e.g. studio/policies/pick_place.pt")
+    parser.add_argument("--decoder", help="the model's latent decoder checkpoint (DECODER_DIR/best.pt)")
+    parser.add_argument("--fp32", action="store_true", help="keep float32 weights (twice the size)")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        sizes = export_policy(args.checkpoint, args.out, decoder=args.decoder, half=not args.fp32)
+    except (FileNotFoundError, ValueError) as e:
+        print(f"studio export-policy: {e}", file=sys.stderr)
+        return 2
+    print(" ".join(f"{k}={v / 1e6:.1f}MB" for k, v in sizes.items()), f"-> {args.out}")
+    return 0

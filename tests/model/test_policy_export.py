@@ -1,0 +1,56 @@
+"""Policy export: a small float16 inference file that plans like its training checkpoint, decoder alongside."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from synthetic_pairs import SyntheticPairs, tiny_run_config
+
+from studio.backend.plan_job import find_decoder
+from studio.cli import main
+from studio.model.config import DecoderConfig
+from studio.model.planner import Planner
+from studio.model.policy_export import export_policy
+from studio.model.train import load_checkpoint, train
+from studio.model.train_decoder import load_decoder, train_decoder
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    train(tiny_run_config(max_steps=3, batch_size=4, val_every=100), SyntheticPairs(), None, out,
+          show_progress=False)  # fmt: skip
+    cfg = DecoderConfig(base_channels=16, stages=3, batch_size=4, steps=2, val_every=100, log_every=1, num_workers=0)
+    train_decoder(out / "last.pt", SyntheticPairs(), None, out / "decoder", cfg, show_progress=False)
+    return out
+
+
+def test_exported_policy_plans_like_the_checkpoint_at_a_fraction_of_the_size(trained, tmp_path):
+    src = trained / "last.pt"
+    sizes = export_policy(src, tmp_path / "policy.pt", decoder=trained / "decoder" / "last.pt")
+    assert sizes["policy_bytes"] < 0.25 * src.stat().st_size  # no optimiser state, half-precision weights
+    policy = load_checkpoint(tmp_path / "policy.pt")
+    assert "optimizer" not in policy and policy["step"] == 3 and policy["config"] == load_checkpoint(src)["config"]
+    sample = SyntheticPairs()[0]
+    args = (sample["expert_frames"], sample["agent_frames"][0], sample["K"], np.eye(4))
+    full, small = Planner.load(src).plan(*args), Planner.load(tmp_path / "policy.pt").plan(*args)
+    assert np.abs(full.waypoints_cam[:, :3] - small.waypoints_cam[:, :3]).max() < 1e-3  # metres
+    assert next(Planner.load(tmp_path / "policy.pt").model.parameters()).dtype == torch.float32
+    # The decoder sits where the studio looks for it, and renders the exported model's latents.
+    dec_path = find_decoder(tmp_path / "policy.pt")
+    assert dec_path == tmp_path / "policy.decoder.pt"
+    images = load_decoder(dec_path).render(small.pooled_states.astype(np.float32))
+    assert images.dtype == np.uint8 and images.shape[0] == small.pooled_states.shape[0]
+
+
+def test_export_command_reports_bad_input(trained, tmp_path, capsys):
+    assert main(["export-policy", str(tmp_path / "nope.pt"), str(tmp_path / "p.pt")]) == 2
+    assert "nope.pt" in capsys.readouterr().err
+    assert main(["export-policy", str(trained / "last.pt"), str(tmp_path / "p.pt"), "--decoder",
+                 str(trained / "last.pt")]) == 2  # fmt: skip
+    assert "not a latent-decoder checkpoint" in capsys.readouterr().err
+    assert main(["export-policy", str(trained / "last.pt"), str(tmp_path / "q.pt")]) == 0
+    assert "policy_bytes=" in capsys.readouterr().out
