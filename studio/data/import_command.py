@@ -3,24 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from studio.data import lerobot
-from studio.data.paths import add_data_dir_argument
-from studio.data.store import EpisodeStore
-
-FORMATS = ("lerobot",)
+from studio.data.export_command import add_format_arguments, open_checked_store
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("format", choices=FORMATS, help="dataset format")
-    lerobot.add_import_arguments(parser)
-    add_data_dir_argument(parser)
+    add_format_arguments(parser, lerobot.add_import_arguments)
 
 
 def run(args: argparse.Namespace) -> int:
-    store = EpisodeStore(args.data_dir)
-    report = store.check()
-    if not report.ok:
-        print(report.summary(), file=sys.stderr)
-    return lerobot.run_import(args, store)
+    return lerobot.run_import(args, open_checked_store(args.data_dir))

@@ -64,7 +64,7 @@ class SimEnv:
         self._obj_qadr = {o: m.jnt_qposadr[m.joint(f"obj_{o}").id] for o in self.scene_info.objects}
         self._obj_body = {m.body(f"obj_{o}").id: o for o in self.scene_info.objects}
         self._finger_bodies = {m.body(b).id for b in _FINGER_BODIES[robot]}
-        self._renderers: dict[tuple[int, int, bool], mujoco.Renderer] = {}
+        self._renderers = rendering.Renderers(self.model)
         # Observation cameras show what a real camera would: no sites, no collision-only geoms.
         self._vis = mujoco.MjvOption()
         self._vis.sitegroup[:] = 0
@@ -184,31 +184,18 @@ class SimEnv:
         }
 
     # ------------------------------------------------------------------ rendering
-    def _renderer(self, height: int, width: int, depth: bool) -> mujoco.Renderer:
-        key = (height, width, depth)
-        r = self._renderers.get(key)
-        if r is None:
-            r = self._renderers[key] = rendering.new_renderer(self.model, height, width, depth)
-        return r
-
     def render(self, camera: str = "external", size: tuple[int, int] | None = None) -> np.ndarray:
         """RGB image (H, W, 3) uint8 from a named camera."""
-        h, w = size or (self.image_size if camera == "external" else self.depth_size)
-        r = self._renderer(h, w, False)
-        r.update_scene(self.data, camera=camera, scene_option=self._vis)
-        return r.render().copy()
+        size = size or (self.image_size if camera == "external" else self.depth_size)
+        return self._renderers.render(self.data, camera, size, scene_option=self._vis)
 
     def render_depth(self, camera: str = "wrist", size: tuple[int, int] | None = None) -> np.ndarray:
         """Depth image (H, W) float32, metres along the camera's optical axis."""
-        h, w = size or (self.depth_size if camera != "external" else self.image_size)
-        r = self._renderer(h, w, True)
-        r.update_scene(self.data, camera=camera, scene_option=self._vis)
-        return r.render().astype(np.float32)
+        size = size or (self.depth_size if camera != "external" else self.image_size)
+        return self._renderers.render(self.data, camera, size, depth=True, scene_option=self._vis)
 
     def close(self) -> None:
-        for r in self._renderers.values():
-            r.close()
-        self._renderers.clear()
+        self._renderers.close()
 
     def __enter__(self) -> SimEnv:
         return self

@@ -136,7 +136,7 @@ class MetaWorldEnv:
         self.control_dt = CONTROL_DT
         self.max_step = MAX_STEP
         self._mw = None
-        self._renderers: dict[tuple[int, int, bool], mujoco.Renderer] = {}
+        self._renderers: rendering.Renderers | None = None  # of the loaded task's model
         self._vis = mujoco.MjvOption()
         self._cameras: dict[tuple[str, int, int], CameraModel] = {}
         self._ever = {"success": False, "near_object": False, "grasp_success": False}
@@ -150,7 +150,7 @@ class MetaWorldEnv:
         """Build the Meta-World env of ``task`` (its own model), unless it is already loaded."""
         if self._mw is not None and self.task is not None and self.task.env_name == task.env_name:
             return
-        self._close_renderers()
+        self.close()
         if self._mw is not None:
             self._mw.close()
         cls = metaworld_env_class(task.env_name)
@@ -166,6 +166,7 @@ class MetaWorldEnv:
         m.cam_fovy[cam] = EXTERNAL_FOVY
         m.vis.quality.offsamples = 0
         self._mw = mw
+        self._renderers = rendering.Renderers(m)
         self._external_id = cam
         self._pristine = {"body_pos": m.body_pos.copy(), "site_pos": m.site_pos.copy()}
         self._robot_qadr = np.array(
@@ -384,36 +385,19 @@ class MetaWorldEnv:
             )
         return cam
 
-    def _renderer(self, height: int, width: int, depth: bool) -> mujoco.Renderer:
-        key = (height, width, depth)
-        r = self._renderers.get(key)
-        if r is None:
-            r = self._renderers[key] = rendering.new_renderer(self.model, height, width, depth)
-        return r
-
     def render(self, camera: str = "external", size: tuple[int, int] | None = None) -> np.ndarray:
         """RGB image (H, W, 3) uint8 from ``"external"`` or one of Meta-World's cameras."""
-        h, w = size or (self.image_size if camera == "external" else self.depth_size)
-        cam = self._camera_id(camera)
-        r = self._renderer(h, w, False)
-        r.update_scene(self.data, camera=cam, scene_option=self._vis)
-        return r.render().copy()
+        size = size or (self.image_size if camera == "external" else self.depth_size)
+        return self._renderers.render(self.data, self._camera_id(camera), size, scene_option=self._vis)
 
     def render_depth(self, camera: str = "external", size: tuple[int, int] | None = None) -> np.ndarray:
         """Depth image (H, W) float32, metres along the camera's optical axis."""
-        h, w = size or (self.image_size if camera == "external" else self.depth_size)
-        cam = self._camera_id(camera)
-        r = self._renderer(h, w, True)
-        r.update_scene(self.data, camera=cam, scene_option=self._vis)
-        return r.render().astype(np.float32)
-
-    def _close_renderers(self) -> None:
-        for r in self._renderers.values():
-            r.close()
-        self._renderers.clear()
+        size = size or (self.image_size if camera == "external" else self.depth_size)
+        return self._renderers.render(self.data, self._camera_id(camera), size, depth=True, scene_option=self._vis)
 
     def close(self) -> None:
-        self._close_renderers()
+        if self._renderers is not None:
+            self._renderers.close()
 
     def __enter__(self) -> MetaWorldEnv:
         return self

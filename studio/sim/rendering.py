@@ -18,6 +18,7 @@ import atexit
 import weakref
 
 import mujoco
+import numpy as np
 
 _LIVE: weakref.WeakSet = weakref.WeakSet()
 _state = {"exit_hook": False, "llvm_preloaded": False}
@@ -58,3 +59,26 @@ def new_renderer(model: mujoco.MjModel, height: int, width: int, depth: bool = F
         atexit.register(_close_all)
         _state["exit_hook"] = True
     return r
+
+
+class Renderers:
+    """The renderers of one model, one per (height, width, depth) and created on first use."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self._by_size: dict[tuple[int, int, bool], mujoco.Renderer] = {}
+
+    def render(self, data: mujoco.MjData, camera: int | str, size: tuple[int, int], *, depth: bool = False,
+               scene_option: mujoco.MjvOption | None = None):  # fmt: skip
+        """RGB (H, W, 3) uint8, or depth (H, W) float32 in metres, from ``camera``."""
+        key = (int(size[0]), int(size[1]), depth)
+        r = self._by_size.get(key)
+        if r is None:
+            r = self._by_size[key] = new_renderer(self.model, key[0], key[1], depth)
+        r.update_scene(data, camera=camera, scene_option=scene_option)
+        return r.render().astype(np.float32) if depth else r.render().copy()
+
+    def close(self) -> None:
+        for r in self._by_size.values():
+            r.close()
+        self._by_size.clear()

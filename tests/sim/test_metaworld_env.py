@@ -9,6 +9,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco
 import numpy as np
 import pytest
+from metaworld_cases import TEST_AND_TWINS
 
 from studio.sim.env import SimEnv, make_env
 from studio.sim.metaworld_env import MetaWorldEnv, metaworld_env_class, quaternion_orders
@@ -16,18 +17,6 @@ from studio.sim.metaworld_tasks import ENV_NAMES, MetaWorldTask
 from studio.sim.recording import ARRAY_FIELDS
 from studio.sim.tasks import get_task, list_tasks
 from studio.sim.waypoints import WaypointController
-
-#: The paper's four test tasks and the training task each looks like.
-TEST_AND_TWINS = [
-    "metaworld/button-press-v3",
-    "metaworld/button-press-wall-v3",
-    "metaworld/pick-place-wall-v3",
-    "metaworld/pick-place-v3",
-    "metaworld/window-open-v3",
-    "metaworld/window-close-v3",
-    "metaworld/door-unlock-v3",
-    "metaworld/door-lock-v3",
-]
 
 
 @pytest.fixture(scope="module")

@@ -8,21 +8,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np
 import pytest
+from metaworld_cases import TEST_AND_TWINS
 
 from studio.data.store import EpisodeStore
 from studio.sim.metaworld_env import MetaWorldEnv
 from studio.sim.metaworld_experts import AFTER_SUCCESS, record_expert
 
-TEST_AND_TWINS = [
-    "metaworld/button-press-v3",
-    "metaworld/button-press-wall-v3",
-    "metaworld/pick-place-wall-v3",
-    "metaworld/pick-place-v3",
-    "metaworld/window-open-v3",
-    "metaworld/window-close-v3",
-    "metaworld/door-unlock-v3",
-    "metaworld/door-lock-v3",
-]
 SIZE = (48, 48)
 
 
