@@ -140,7 +140,7 @@ class RunRegistry:
         if env and Path(env).is_file():
             files.append(Path(env))
         if self.policy_dir.is_dir():
-            files += sorted(self.policy_dir.glob("*.pt"))
+            files += sorted(f for f in self.policy_dir.glob("*.pt") if not f.name.endswith(".decoder.pt"))
         return [Checkpoint(f"default/{f.stem}", str(f), f"shipped policy {f.stem}") for f in files]
 
     def runs(self) -> list[RunInfo]:

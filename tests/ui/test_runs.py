@@ -52,6 +52,8 @@ def test_active_checkpoint_defaults_persists_and_falls_back(tmp_path):
     assert reg.active().is_oracle, "nothing trained, nothing shipped: the oracle, labelled as the ceiling"
     policies.mkdir()
     (policies / "osvi-pick-place.pt").write_bytes(b"x")
+    (policies / "osvi-pick-place.decoder.pt").write_bytes(b"x")  # its latent decoder is not a policy
+    assert [c.id for c in reg.default_policies()] == ["default/osvi-pick-place"]
     assert reg.active().id == "default/osvi-pick-place", "a shipped policy is active from the start"
     _run(tmp_path / "data", "train-a")
     reg.set_active("train-a/best")
