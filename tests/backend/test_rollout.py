@@ -1,5 +1,6 @@
 """Rollouts and evaluation: deterministic for a seed, re-planning inside one episode, stored records reload."""
 
+import json
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -129,3 +130,22 @@ def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
         assert record.path == str(ck.resolve()) and record.step == 7
     with pytest.raises(FileNotFoundError, match="no checkpoint file"):
         evaluate(str(tmp_path / "missing.pt"), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False)
+
+
+def test_results_command_writes_a_table_of_held_out_success(tmp_path, capsys):
+    from studio.cli import main
+
+    root = tmp_path / "data"
+    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["test"], episodes=1, data_dir=str(root),
+                          progress=False, image_size=(120, 160)))
+    out = tmp_path / "results.md"
+    assert main(["results", "--policy", "oracle=oracle", "--episodes", "1", "--replan", "0", "1", "--workers", "1",
+                 "--data-dir", str(root), "--out", str(out)]) == 0  # fmt: skip
+    text = out.read_text()
+    assert "pick_place/bar->blue" in text and "pick_place/bar->yellow" in text
+    rows = [line for line in text.splitlines() if line.startswith("| oracle")]
+    assert len(rows) == 2 and all("**100.0%**" in r for r in rows), text  # the oracle's plans succeed
+    assert len(json.loads(out.with_suffix(".json").read_text())) == 2
+    with pytest.raises(SystemExit):
+        main(["results", "--policy", "no-equals-sign"])
+    assert "NAME=CHECKPOINT" in capsys.readouterr().err

@@ -1,0 +1,81 @@
+"""`studio results`: the held-out evaluations behind ``docs/results.md``, rendered as a Markdown table.
+
+    studio results --policy NAME=CKPT [--policy NAME=CKPT ...] [--scene pick_place] [--episodes 100]
+                   [--replan 0 2] [--seed 0] [--workers 2] [--data-dir DIR] [--out results.md]
+
+Each policy (the main checkpoint first, then e.g. ablations trained on the same data and budget) is evaluated on
+the scene's held-out tasks once per ``--replan`` value, with the same seeds — so every row sees the same scenes and
+demonstrations. Writes the Markdown (per-task success, the reached/grasped/placed breakdown, planning time, wall
+time) and, beside it, the full JSON reports. ``oracle`` as a checkpoint gives the execution ceiling.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+from pathlib import Path
+
+from studio.data.paths import add_data_dir_argument
+
+
+def parse_policy(spec: str) -> tuple[str, str]:
+    name, sep, path = spec.partition("=")
+    if not sep or not name or not path:
+        raise argparse.ArgumentTypeError(f"--policy takes NAME=CHECKPOINT, got {spec!r}")
+    return name, path
+
+
+def _mean(report: dict, key: str) -> str:
+    """A breakdown rate over all of a report's rollouts (tasks weighted by their rollout counts)."""
+    n = max(report["rollouts"], 1)
+    return f"{sum(v[key] * v['rollouts'] for v in report['tasks'].values()) / n:.1%}"
+
+
+def render_markdown(reports: list[tuple[str, int, dict]]) -> str:
+    """Rows of (policy name, replans, evaluation report) → a Markdown table (one row per policy × replans)."""
+    tasks = sorted({t for _, _, r in reports for t in r["tasks"]})
+    head = ["policy", "re-plans", *tasks, "all", "reached", "grasped", "placed", "plan ms", "rollouts", "wall min"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, replan, r in reports:
+        per_task = [f"{r['tasks'][t]['success']:.1%}" if t in r["tasks"] else "–" for t in tasks]
+        row = [name, str(replan), *per_task, f"**{r['success']:.1%}**", _mean(r, "reached"),
+               _mean(r, "grasped"), _mean(r, "placed"), f"{r['mean_planning_ms']:.0f}", str(r["rollouts"]), f"{r['wall_s'] / 60:.1f}"]  # fmt: skip
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--policy", type=parse_policy, action="append", required=True, metavar="NAME=CKPT",
+                        help="a checkpoint to evaluate, named for the table (repeatable; 'oracle' allowed)")  # fmt: skip
+    parser.add_argument("--scene", default="pick_place")
+    parser.add_argument("--episodes", type=int, default=100, help="rollouts per held-out task")
+    parser.add_argument("--replan", type=int, nargs="+", default=[0, 2], help="re-plan budgets to report")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", default=None, help="Markdown file to write (default: print only)")
+    add_data_dir_argument(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from studio.backend.evaluation import evaluate, resolve_tasks
+
+    tasks = resolve_tasks("held-out", args.scene)
+    reports: list[tuple[str, int, dict]] = []
+    for name, checkpoint in args.policy:
+        for replan in args.replan:
+            print(f"== {name}, re-plans {replan}", file=sys.stderr, flush=True)
+            report = evaluate(checkpoint, tasks, args.episodes, args.seed, replan, args.workers, args.data_dir)
+            reports.append((name, replan, report))
+    table = render_markdown(reports)
+    machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, {platform.platform()}"
+    text = (f"Held-out tasks of `{args.scene}` ({', '.join(tasks)}), {args.episodes} rollouts per task, seed "
+            f"{args.seed}; {machine}.\n\n{table}")  # fmt: skip
+    print(text)
+    if args.out:
+        out = Path(args.out)
+        out.write_text(text)
+        full = [{"policy": n, "replan": k, **{key: v for key, v in r.items() if key != "rows"}} for n, k, r in reports]
+        out.with_suffix(".json").write_text(json.dumps(full, indent=2, default=float))
+    return 0
