@@ -65,6 +65,8 @@ class ModelConfig:
         state_channels: 1×1-convolution reduction of the trunk's maps to this many channels; 0 keeps them.
         action_blocks, action_heads, action_attn_dim, action_mlp_dim, action_dropout: the causal transformer π.
         wm_blocks, wm_heads, wm_width, wm_mlp_dim, wm_dropout: the causal transformer 𝒲.
+        wm_residual: 𝒲 predicts the change of state, r_{i+1} = r_i + 𝒲(…), starting from the identity (see
+            ``world_model``); off in the paper presets, on in ``cpu``, where training starts from random weights.
         pool_heads: heads of the attention pooling over predicted steps.
         head_hidden, head_dropout: the two-layer waypoint MLP.
         max_waypoints: the largest waypoint set; sets of 1..max_waypoints are predicted (15 rows for 5).
@@ -90,6 +92,7 @@ class ModelConfig:
     wm_width: int = 512
     wm_mlp_dim: int = 2048
     wm_dropout: float = 0.0
+    wm_residual: bool = False
     pool_heads: int = 1
     head_hidden: int = 1280
     head_dropout: float = 0.2

@@ -39,3 +39,25 @@ def test_prediction_at_a_step_ignores_later_steps():
 def test_layer_sizes_follow_the_state_shape():
     wm = WorldModel((512, 8, 10), width=512, blocks=1, heads=4, mlp_dim=2048)
     assert wm.embed.in_features == 2 * 512 * 80 and wm.out.out_features == 512 * 80
+
+
+def test_residual_world_model_starts_as_the_identity_and_learns_changes():
+    torch.manual_seed(0)
+    wm = WorldModel((4, 2, 3), width=16, blocks=1, heads=2, mlp_dim=16, residual=True)
+    states, actions = torch.randn(2, 3, 4, 2, 3), torch.randn(2, 3, 4, 2, 3)
+    assert torch.equal(wm(states, actions), states)  # every input's layout survives the first steps of training
+    nxt, _ = wm.step(states[:, 0], actions[:, 0], None)
+    assert torch.equal(nxt, states[:, 0])
+    target = states + 1.0
+    opt = torch.optim.Adam(wm.parameters(), lr=1e-2)
+    for _ in range(50):
+        opt.zero_grad()
+        loss = (wm(states, actions) - target).abs().mean()
+        loss.backward()
+        opt.step()
+    assert loss.item() < 0.5
+    cache = None
+    full = wm.eval()(states, actions)
+    for i in range(3):  # the cached path adds the same residual
+        nxt, cache = wm.step(states[:, i], actions[:, i], cache)
+        assert torch.allclose(nxt, full[:, i], atol=1e-5)
