@@ -392,32 +392,6 @@ def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
     assert row and row[0].checkpoint_id is None
 
 
-def test_shipped_policy_plans_and_executes_a_held_out_task(studio, page, shots):
-    """The policy installed with the package, active by default: Plan shows waypoints and decoded latent images,
-    Execute finishes with an outcome, and the stored rollout names the policy."""
-    tab = _tab(studio)
-    im = tab.imitate
-    (shipped,) = studio.runs.default_policies()
-    studio.runs.set_active(shipped.id)
-    _click(page.get_by_role("tab", name="Imitate"))
-    im.task.value = HELD_OUT + " (held-out)"
-    _wait(lambda: shipped.id in im.policy.content, 20, "the shipped policy to be active")
-    _click(page.get_by_role("button", name="Make a scripted demonstration"))
-    page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
-    im.seed.value = 3
-    _click(page.get_by_role("button", name="Plan", exact=True))
-    _wait(lambda: im.latent_strip.visible, 120, "the decoded latent trajectory")
-    assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
-    _shot(page, shots / "imitate-shipped-plan.png", scroll_to="Predicted latent trajectory")
-    im.speed.value = "as fast as possible"
-    _click(page.get_by_role("button", name="Execute", exact=True))
-    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=120_000)
-    result = _wait(lambda: im.rollout.result, 30, "the rollout's result")
-    _shot(page, shots / "imitate-shipped-outcome.png")
-    row = [r for r in studio.store.catalog.rollouts(task=HELD_OUT) if r.id == result["rollout_id"]]
-    assert row and row[0].checkpoint_id == shipped.id
-
-
 def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots):
     """The run trained from the UI, with a latent decoder, as the active policy: Plan shows decoded latents."""
     tab = _tab(studio)
