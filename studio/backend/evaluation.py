@@ -134,11 +134,9 @@ def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None,
         planner.clear_cache()
     out = run_rollout(env, planner, expert_frames, job.task, job.env_seed, replans=replan)
     if keep and _W["checkpoint"] != "oracle":
-        from studio.backend.plan_job import decode_latents
+        from studio.backend.plan_job import attach_latent_images
 
-        for p in out.plans:  # what the world model imagined, as images, for the inspector
-            if p.pooled_states is not None:
-                p.latent_images = decode_latents(_W["checkpoint"], p.pooled_states)
+        attach_latent_images(_W["checkpoint"], out.plans)
     record = store_rollout(store, out, expert_episode_id=expert_id, checkpoint_id=checkpoint_id, eval_id=eval_id,
                            keep=keep, extra={"index": job.index})
     rollout_id = record.id
@@ -183,22 +181,26 @@ def default_robot(scene: str) -> str:
 def register_checkpoint(data_dir, checkpoint: str | os.PathLike) -> str:
     """The catalog id of a checkpoint file, registering it (and its run) on first use.
 
-    A policy shipped with the package gets the id the studio's UI gives it (``default/<name>``).
+    Ids follow the studio's naming (``studio.ui.runs``): ``<run-dir>/<name>`` for ``<run-dir>/<name>.pt``, and
+    ``default/<name>`` in run ``shipped`` for a policy shipped with the package.
     """
-    from studio.data.catalog import Catalog
-    from studio.data.paths import CATALOG_NAME
+    from studio.data.catalog import Catalog, CheckpointRecord, RunRecord
+    from studio.data.paths import CATALOG_NAME, SHIPPED_POLICY_DIR, SHIPPED_RUN_ID, SHIPPED_RUN_NAME
     from studio.model.train import load_checkpoint
 
     path = Path(checkpoint).resolve()
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint file {str(checkpoint)!r}")
-    step = int(load_checkpoint(path).get("step", 0))
-    shipped = path.parent == Path(__file__).resolve().parents[1] / "policies"
+    shipped = path.parent == SHIPPED_POLICY_DIR.resolve()
+    run_id = SHIPPED_RUN_ID if shipped else path.parent.name
+    checkpoint_id = f"default/{path.stem}" if shipped else f"{run_id}/{path.stem}"
     with Catalog(Path(data_dir) / CATALOG_NAME) as catalog:
-        return catalog.ensure_checkpoint_file(
-            path, step=step, checkpoint_id=f"default/{path.stem}" if shipped else None,
-            run_id="shipped" if shipped else None,
-        )
+        if not catalog.has_checkpoint(checkpoint_id):  # reading the file (for its step) only the first time
+            step = int(load_checkpoint(path).get("step", 0))
+            catalog.ensure_checkpoint(CheckpointRecord(id=checkpoint_id, run_id=run_id, step=step, path=str(path)),
+                                      RunRecord(id=run_id, status="done", name=SHIPPED_RUN_NAME if shipped else run_id,
+                                                path=str(path.parent)))  # fmt: skip
+    return checkpoint_id
 
 
 def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan: int = 0, workers: int = 1,

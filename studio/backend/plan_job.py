@@ -64,6 +64,14 @@ def decode_latents(checkpoint: str | os.PathLike, pooled_states: np.ndarray) -> 
     return decoder.render(pooled)
 
 
+def attach_latent_images(checkpoint: str | os.PathLike, plans) -> None:
+    """Set ``latent_images`` on every plan (``rollout.PlanRecord``) that kept its pooled states, when the
+    checkpoint has a decoder: what the world model imagined, as images, for the inspector."""
+    for p in plans:
+        if p.pooled_states is not None:
+            p.latent_images = decode_latents(checkpoint, p.pooled_states)
+
+
 def expert_indices(n_frames: int, n: int = 10) -> np.ndarray:
     """The frames of an ``n_frames`` video the planner looks at: ``n`` evenly spaced, first and last kept."""
     if n_frames < 1:

@@ -242,8 +242,8 @@ def run_rollout_job(ctx) -> dict:
     """The ``rollout`` job of a sim worker.
 
     Spec: ``checkpoint`` (path or ``"oracle"``), ``expert_episode_id``, ``task``, ``seed``, ``replans``
-    (default 0), ``robot`` (default ``"panda"``), ``checkpoint_id`` (the name stored with the rollout;
-    default the checkpoint file's stem), ``speed`` (simulated seconds per wall-clock second,
+    (default 0), ``robot`` (default ``"panda"``), ``checkpoint_id`` (the catalog id stored with the rollout;
+    default: the file registered as ``<run-dir>/<name>``, see ``evaluation.register_checkpoint``), ``speed`` (simulated seconds per wall-clock second,
     default 1 = real time so viewers see it live; 0 = as fast as possible). Streams progress (planning, waypoint i of 5, grasp
     correction, re-planning, outcome) and body poses at ≤ 30 Hz, stores the rollout and returns its summary.
     """
@@ -323,11 +323,9 @@ def run_rollout_job(ctx) -> dict:
         checkpoint = str(spec["checkpoint"])
         if checkpoint != "oracle":
             # Decoded here, where the model lives, so that viewers (the UI) never need torch.
-            from studio.backend.plan_job import decode_latents
+            from studio.backend.plan_job import attach_latent_images
 
-            for p in out.plans:
-                if p.pooled_states is not None:
-                    p.latent_images = decode_latents(checkpoint, p.pooled_states)
+            attach_latent_images(checkpoint, out.plans)
         checkpoint_id = spec.get("checkpoint_id")
         if checkpoint != "oracle" and not checkpoint_id:
             from studio.backend.evaluation import register_checkpoint

@@ -412,23 +412,20 @@ class Catalog:
         d["is_best"] = int(d["is_best"])
         self._insert("checkpoints", d)
 
-    def ensure_checkpoint_file(self, path: str | Path, *, step: int = 0, checkpoint_id: str | None = None,
-                               run_id: str | None = None) -> str:  # fmt: skip
-        """Register a checkpoint file (and its run) once and return its id; rollouts refer to it by that id.
+    def has_checkpoint(self, checkpoint_id: str) -> bool:
+        return bool(self._query("SELECT 1 FROM checkpoints WHERE id = ?", [checkpoint_id]))
 
-        Defaults follow the studio's naming: a file ``<run-dir>/<name>.pt`` is checkpoint ``<run-dir>/<name>``
-        of run ``<run-dir>``. An id already known is returned unchanged (its row is not rewritten).
-        """
-        path = Path(path).resolve()
-        run_id = run_id or path.parent.name
-        checkpoint_id = checkpoint_id or f"{run_id}/{path.stem}"
+    def ensure_checkpoint(self, ck: CheckpointRecord, run: RunRecord) -> None:
+        """Add ``ck``, and ``run`` (its run) if the catalog lacks that run, unless ``ck.id`` is already known
+        (then nothing is rewritten). Rollouts refer to checkpoints by id, so register before storing them."""
+        if ck.run_id != run.id:
+            raise ValueError(f"checkpoint {ck.id!r} belongs to run {ck.run_id!r}, not {run.id!r}")
         with self.transaction():
-            if self._query("SELECT 1 FROM checkpoints WHERE id = ?", [checkpoint_id]):
-                return checkpoint_id
-            if not self._query("SELECT 1 FROM runs WHERE id = ?", [run_id]):
-                self.add_run(RunRecord(id=run_id, status="done", name=run_id, path=str(path.parent)))
-            self.add_checkpoint(CheckpointRecord(id=checkpoint_id, run_id=run_id, step=int(step), path=str(path)))
-        return checkpoint_id
+            if self.has_checkpoint(ck.id):
+                return
+            if not self._query("SELECT 1 FROM runs WHERE id = ?", [run.id]):
+                self.add_run(run)
+            self.add_checkpoint(ck)
 
     def checkpoints(self, run_id: str | None = None) -> list[CheckpointRecord]:
         sql, params = "SELECT * FROM checkpoints", []

@@ -8,6 +8,8 @@ on Linux). Inside it::
     episodes/<id>/            one directory per stored episode (see :mod:`studio.data.episode`)
     tmp/                      episodes being written (and their lock files); leftovers are cleaned at start-up
     cache/frames/<H>x<W>/     decoded frames at a training resolution (see :mod:`studio.data.training_view`)
+
+Trained policies shipped with the package live outside it, in ``SHIPPED_POLICY_DIR`` (``studio/policies``).
 """
 
 from __future__ import annotations
@@ -25,6 +27,11 @@ CATALOG_NAME = "catalog.sqlite"
 EPISODES_DIR = "episodes"
 TMP_DIR = "tmp"
 CACHE_DIR = "cache"
+
+#: Policy files installed with the package (``NAME.pt``, its latent decoder ``NAME.decoder.pt``).
+SHIPPED_POLICY_DIR = Path(__file__).resolve().parents[1] / "policies"
+#: The catalog's run and name for them.
+SHIPPED_RUN_ID, SHIPPED_RUN_NAME = "shipped", "policies shipped with the studio"
 
 
 def default_data_dir() -> Path:

@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-import studio
+from studio.data.paths import SHIPPED_POLICY_DIR, SHIPPED_RUN_ID, SHIPPED_RUN_NAME
 
 RUNS_DIR = "runs"
 ACTIVE_FILE = "ui/active_checkpoint.json"
-DEFAULT_POLICY_DIR = Path(studio.__file__).resolve().parent / "policies"
+DEFAULT_POLICY_DIR = SHIPPED_POLICY_DIR
 DEFAULT_POLICY_ENV = "STUDIO_DEFAULT_POLICY"
 ORACLE = "oracle"
 
@@ -233,17 +233,15 @@ class RunRegistry:
 
         if ck.is_oracle:
             return
-        run_id = ck.run_id or "shipped"
-        known_runs = {r.id for r in catalog.runs()}
-        if any(c.id == ck.id for c in catalog.checkpoints(run_id if run_id in known_runs else None)):
+        run_id = ck.run_id or SHIPPED_RUN_ID
+        if catalog.has_checkpoint(ck.id):
             return
         info = next((r for r in self.runs() if r.id == ck.run_id), None)
         status = {"finished": "done", "cancelled": "cancelled"}.get(info.ended if info else "", "running")
-        with catalog.transaction():
-            if run_id not in known_runs:
-                name = "policies shipped with the studio" if ck.run_id is None else run_id
-                catalog.add_run(RunRecord(id=run_id, status="done" if ck.run_id is None else status, name=name,
-                                          path=str(Path(ck.path).parent)))  # fmt: skip
-            catalog.add_checkpoint(CheckpointRecord(id=ck.id, run_id=run_id, step=info.step if info else 0,
-                                                    path=ck.path, val_loss=info.best_val if info else None,
-                                                    is_best=ck.id.endswith("/best")))  # fmt: skip
+        name = SHIPPED_RUN_NAME if ck.run_id is None else run_id
+        catalog.ensure_checkpoint(
+            CheckpointRecord(id=ck.id, run_id=run_id, step=info.step if info else 0, path=ck.path,
+                             val_loss=info.best_val if info else None, is_best=ck.id.endswith("/best")),
+            RunRecord(id=run_id, status="done" if ck.run_id is None else status, name=name,
+                      path=str(Path(ck.path).parent)),
+        )  # fmt: skip
