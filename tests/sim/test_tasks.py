@@ -37,6 +37,15 @@ def test_layouts_differ_between_seeds_and_keep_slots_apart():
         assert d.min() > 0.1
 
 
+def test_target_zones_keep_their_locations_as_in_the_benchmark():
+    """T-OSVI's pick-and-place: objects are rearranged per seed, the four target locations are not."""
+    layouts = [TASKS["pick_place/cube->red"].sample_layout(s) for s in range(20)]
+    for name, x in zip(("red", "green", "blue", "yellow"), (-0.21, -0.07, 0.07, 0.21)):
+        xy = np.array([lay.target_pos[name] for lay in layouts])
+        assert np.all(np.abs(xy[:, 0] - x) <= 0.015) and np.all(np.abs(xy[:, 1] - 0.64) <= 0.015)
+        assert xy[:, 0].std() > 0.001, "zones are jittered"
+
+
 def test_pick_place_success_predicate(env_factory):
     env = env_factory("pick_place", "sawyer")
     env.reset("pick_place/cube->green", 0)
