@@ -5,7 +5,8 @@ frame is H·W tokens of width C — one per cell of the latent state — or a si
 before the world model (ablation). A fixed temporal sin/cos code of the frame index is added to every token, plus
 a fixed 2-D sin/cos code of the cell (the paper names only the temporal code; the reference code's flattened
 (t, h, w) index codes the cell too, and without it attention could not tell cells apart). The block-causal
-transformer (``transformer``) then gives, at the last frame, H·W output tokens: the latent action a_i, shaped like
+transformer (``transformer``; joint attention as in the paper, or divided time-then-space attention —
+``ModelConfig.action_attention``, on in the ``cpu`` preset, reasons in ``transformer``) then gives, at the last frame, H·W output tokens: the latent action a_i, shaped like
 a state (C, H, W).
 
 The expert prefix is processed once (``context``) and the agent frames one by one (``step``) on top of its
@@ -32,13 +33,18 @@ class ActionModel(nn.Module):
         attn_dim: int,
         mlp_dim: int,
         dropout: float = 0.0,
+        attention: str = "joint",
     ) -> None:
         super().__init__()
         if len(state_shape) not in (1, 3):
             raise ValueError(f"ActionModel state_shape must be (C, H, W) or (D,), got {state_shape}")
+        if attention not in ("joint", "divided"):
+            raise ValueError(f"ActionModel attention must be 'joint' or 'divided', got {attention!r}")
         self.state_shape = tuple(state_shape)
         dim = state_shape[0]
-        self.transformer = CausalTransformer(dim, blocks, heads, attn_dim, mlp_dim, dropout)
+        self.transformer = CausalTransformer(
+            dim, blocks, heads, attn_dim, mlp_dim, dropout, divided=attention == "divided"
+        )
         if len(state_shape) == 3:
             _, h, w = state_shape
             self.register_buffer("cell_code", grid_encoding(h, w, dim), persistent=False)

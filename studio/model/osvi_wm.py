@@ -84,6 +84,7 @@ class OSVIWM(nn.Module):
             cfg.action_attn_dim,
             cfg.action_mlp_dim,
             cfg.action_dropout,
+            cfg.action_attention,
         )
         self.world_model = (
             WorldModel(

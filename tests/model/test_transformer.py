@@ -10,13 +10,17 @@ from studio.model.transformer import CausalTransformer
 torch.set_num_threads(1)
 
 
-def _model() -> CausalTransformer:
+LAYOUTS = pytest.mark.parametrize("divided", [False, True], ids=["joint", "divided"])
+
+
+def _model(divided: bool = False) -> CausalTransformer:
     torch.manual_seed(0)
-    return CausalTransformer(dim=16, blocks=2, heads=4, attn_dim=16, mlp_dim=32).eval()
+    return CausalTransformer(dim=16, blocks=2, heads=4, attn_dim=16, mlp_dim=32, divided=divided).eval()
 
 
-def test_later_frames_never_change_earlier_outputs():
-    model = _model()
+@LAYOUTS
+def test_later_frames_never_change_earlier_outputs(divided):
+    model = _model(divided)
     x = torch.randn(2, 6, 5, 16)
     y, _ = model(x)
     x2 = x.clone()
@@ -26,8 +30,9 @@ def test_later_frames_never_change_earlier_outputs():
     assert not torch.allclose(y[:, 4:], y2[:, 4:])
 
 
-def test_tokens_of_one_frame_see_each_other():
-    model = _model()
+@LAYOUTS
+def test_tokens_of_one_frame_see_each_other(divided):
+    model = _model(divided)
     x = torch.randn(1, 3, 4, 16)
     y, _ = model(x)
     x2 = x.clone()
@@ -36,9 +41,10 @@ def test_tokens_of_one_frame_see_each_other():
     assert not torch.allclose(y[:, 1, 0], y2[:, 1, 0])
 
 
+@LAYOUTS
 @pytest.mark.parametrize("chunks", [[6], [3, 1, 1, 1], [1, 2, 3]])
-def test_cached_chunks_equal_one_full_pass(chunks):
-    model = _model()
+def test_cached_chunks_equal_one_full_pass(chunks, divided):
+    model = _model(divided)
     x = torch.randn(2, 6, 5, 16)
     full, _ = model(x)
     cache, outs, t = None, [], 0
@@ -50,11 +56,39 @@ def test_cached_chunks_equal_one_full_pass(chunks):
     assert torch.allclose(torch.cat(outs, 1), full, atol=1e-5)
 
 
-def test_cache_index_select_broadcasts_a_prefix_to_several_sequences():
-    model = _model()
+@LAYOUTS
+def test_cache_index_select_broadcasts_a_prefix_to_several_sequences(divided):
+    model = _model(divided)
     prefix = torch.randn(1, 3, 5, 16)
     tails = torch.randn(3, 1, 5, 16)
     _, cache = model(prefix)
     y, _ = model(tails, cache.index_select(torch.zeros(3, dtype=torch.long)))
     full, _ = model(torch.cat([prefix.expand(3, -1, -1, -1), tails], 1))
     assert torch.allclose(y, full[:, 3:], atol=1e-5)
+
+
+@LAYOUTS
+def test_a_token_reads_other_cells_of_earlier_frames(divided):
+    """Time then space (divided) still carries a change at any cell of an earlier frame to every cell later on."""
+    model = _model(divided)
+    x = torch.randn(1, 4, 5, 16)
+    y, _ = model(x)
+    x2 = x.clone()
+    x2[:, 0, 4] += torch.randn(16)
+    y2, _ = model(x2)
+    assert (y[:, 3, 0] - y2[:, 3, 0]).abs().max() > 1e-4
+
+
+def test_divided_time_attention_sees_only_the_same_cell_over_time():
+    """In one divided block without MLP, before the space step, a cell's time step reads only its own cell."""
+    torch.manual_seed(0)
+    block = CausalTransformer(dim=8, blocks=1, heads=2, attn_dim=8, mlp_dim=0, divided=True).blocks[0].eval()
+    x = torch.randn(1, 3, 4, 8)
+    q, k, v = block.qkv(block.norm1(x).reshape(1, 12, 8)).reshape(1, 12, 3, 2, 4).permute(2, 0, 3, 1, 4)
+    out = block._time_attention(q, k, v, 3, 4, 0, 0.0)
+    x2 = x.clone()
+    x2[:, 0, 1] += 5.0  # another cell of an earlier frame
+    q2, k2, v2 = block.qkv(block.norm1(x2).reshape(1, 12, 8)).reshape(1, 12, 3, 2, 4).permute(2, 0, 3, 1, 4)
+    out2 = block._time_attention(q2, k2, v2, 3, 4, 0, 0.0)
+    assert torch.allclose(out[:, :, [0, 2, 3]], out2[:, :, [0, 2, 3]], atol=1e-6)
+    assert not torch.allclose(out[:, 1:, 1], out2[:, 1:, 1])
