@@ -70,7 +70,10 @@ class ModelConfig:
         channels_last: run the convolutional trunk in channels-last memory layout (faster on CPU).
         state_channels: 1×1-convolution reduction of the trunk's maps to this many channels; 0 keeps them.
         action_blocks, action_heads, action_attn_dim, action_mlp_dim, action_dropout: the causal transformer π.
+        action_attention: "joint" (the paper: every token attends to all tokens of frames ≤ t) or "divided"
+            (time, then space attention in each block; see ``transformer``); ``cpu`` uses "divided".
         wm_blocks, wm_heads, wm_width, wm_mlp_dim, wm_dropout: the causal transformer 𝒲.
+        wm_tokens: "map" (the paper: one dense token per step) or "cells" (a token per cell; see ``world_model``).
         wm_residual: 𝒲 predicts the change of state, r_{i+1} = r_i + 𝒲(…), starting from the identity (see
             ``world_model``); off in the paper presets, on in ``cpu``, where training starts from random weights.
         pool_heads: heads of the attention pooling over predicted steps.
@@ -93,12 +96,14 @@ class ModelConfig:
     action_attn_dim: int = 128
     action_mlp_dim: int = 512
     action_dropout: float = 0.0
+    action_attention: Literal["joint", "divided"] = "joint"
     wm_blocks: int = 1
     wm_heads: int = 4
     wm_width: int = 512
     wm_mlp_dim: int = 2048
     wm_dropout: float = 0.0
     wm_residual: bool = False
+    wm_tokens: Literal["map", "cells"] = "map"
     pool_heads: int = 1
     head_hidden: int = 1280
     head_dropout: float = 0.2
@@ -287,8 +292,8 @@ def preset(name: str) -> RunConfig:
         return RunConfig(model, train)
     if name == "cpu":
         model = ModelConfig(
-            image_size=(120, 160),
-            encoder_stages=3,
+            image_size=(72, 96),
+            encoder_stages=2,
             state_channels=64,
             action_blocks=2,
             action_heads=4,
@@ -298,11 +303,14 @@ def preset(name: str) -> RunConfig:
             wm_heads=4,
             wm_width=256,
             wm_mlp_dim=512,
-            wm_residual=True,
+            wm_residual=False,
+            wm_tokens="cells",
+            action_attention="divided",
             head_hidden=256,
             head_dropout=0.1,
         )
-        train = TrainConfig(batch_size=16, epochs=10.0, val_every=250, checkpoint_every=100)
+        train = TrainConfig(batch_size=16, epochs=10.0, val_every=250, checkpoint_every=100, lr_max=1e-3,
+                            lr_warmup=0.05, hflip=0.0, mixup=False)
         return RunConfig(model, train)
     raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
 

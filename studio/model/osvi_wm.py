@@ -89,7 +89,7 @@ class OSVIWM(nn.Module):
         self.world_model = (
             WorldModel(
                 self.state_shape, cfg.wm_width, cfg.wm_blocks, cfg.wm_heads, cfg.wm_mlp_dim, cfg.wm_dropout,
-                residual=cfg.wm_residual,
+                residual=cfg.wm_residual, tokens=cfg.wm_tokens,
             )
             if cfg.world_model
             else None

@@ -182,10 +182,35 @@ def compute_losses(
 
 
 @torch.no_grad()
+def demonstration_effect(core: OSVIWM, batch: Batch, other: Batch) -> tuple[float, int]:
+    """How far the predicted waypoints move when each pair's demonstration is swapped for another task's.
+
+    Every pair of ``batch`` is planned twice: with its own demonstration and with one of ``other``'s whose task
+    differs. Returns the mean displacement of the n-waypoint set (metres, over the pairs that had a
+    different-task demonstration to swap in) and that number of pairs. A model that imitates needs this to be
+    about as large as the distance between the tasks' paths; near 0 means the plan ignores the demonstration
+    (the failure that a validation error stuck at the mean path hides). Eval mode, no augmentation.
+    """
+    b = batch.agent_frames.shape[0]
+    ids = torch.arange(b, device=batch.agent_frames.device) % other.expert_frames.shape[0]
+    keep = other.expert_tasks.to(ids.device)[ids] != batch.agent_tasks.to(ids.device)
+    if not bool(keep.any()):
+        return 0.0, 0
+    n = core.cfg.max_waypoints
+    own = core(batch.expert_frames, batch.agent_frames, batch.expert_ids).waypoints
+    swapped = core(other.expert_frames, batch.agent_frames, ids).waypoints
+    p_own = core.decode_waypoints(own.float(), batch.K)["position"][:, -n:]
+    p_swapped = core.decode_waypoints(swapped.float(), batch.K)["position"][:, -n:]
+    moved = (p_own - p_swapped).norm(dim=-1).mean(dim=-1)[keep]
+    return float(moved.mean()), int(keep.sum())
+
+
+@torch.no_grad()
 def validate(
     core: OSVIWM, source: PairSource, run: RunConfig, step: int, total: int, device: torch.device
 ) -> dict:
-    """Mean losses and errors over ``val_batches`` evenly spread batches of ``source`` (eval mode, no augment)."""
+    """Mean losses and errors over ``val_batches`` evenly spread batches of ``source`` (eval mode, no augment),
+    plus ``demo_effect_m`` (``demonstration_effect`` against the batch half the set away)."""
     cfg = run.train
     bs = min(cfg.batch_size, len(source))
     n_batches = len(source) // bs
@@ -195,18 +220,28 @@ def validate(
     was_training = core.training
     core.eval()
     totals: dict[str, float] = {}
+    effect_sum, effect_pairs = 0.0, 0
+
+    def batch_at(first: int) -> Batch:
+        samples = [source[int(i) % len(source)] for i in range(first, first + bs)]
+        return collate_pairs(
+            samples, core.cfg.image_size, core.cfg.n_expert_frames, core.cfg.n_agent_frames
+        ).to(device)
+
     try:
         for s in starts:
-            samples = [source[int(i)] for i in range(s, s + bs)]
-            batch = collate_pairs(
-                samples, core.cfg.image_size, core.cfg.n_expert_frames, core.cfg.n_agent_frames
-            )
-            _, parts = compute_losses(core, core, batch.to(device), run, step, total, None)
+            batch = batch_at(int(s))
+            _, parts = compute_losses(core, core, batch, run, step, total, None)
             for k, v in parts.items():
                 totals[k] = totals.get(k, 0.0) + v / len(starts)
+            effect, pairs = demonstration_effect(core, batch, batch_at(int(s) + len(source) // 2))
+            effect_sum, effect_pairs = effect_sum + effect * pairs, effect_pairs + pairs
     finally:
         core.train(was_training)
-    return {f"val_{k}" if k != "alpha" else k: v for k, v in totals.items()}
+    out = {f"val_{k}" if k != "alpha" else k: v for k, v in totals.items()}
+    if effect_pairs:
+        out["val_demo_effect_m"] = effect_sum / effect_pairs
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- the loop
