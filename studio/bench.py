@@ -11,6 +11,7 @@ import sys
 TARGETS: dict[str, str] = {
     "sim": "studio.sim.bench",
     "model": "studio.model.bench",
+    "follow": "studio.model.follow_bench",
     "collect": "studio.data.bench",
     "bus": "studio.backend.bench",
     "metaworld": "studio.sim.metaworld_bench",
