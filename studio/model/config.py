@@ -164,6 +164,8 @@ class TrainConfig:
         crop, translate, scale, hflip, vflip, brightness, contrast, saturation, hue: augmentation ranges
             (fractions of the image size for crop/translate; scale is a zoom range; flips are probabilities).
         mixup, mixup_min: asymmetric demonstration mixup with β ~ U(mixup_min, 1) and a partner of another task.
+        aug_warmup: fraction of the steps trained on clean pairs (no augmentation, no mixup) before both start —
+            augmentation noise lengthens the plateau before π starts reading the demonstration (docs/results.md).
         seed: every random choice of the run derives from it.
         val_every, val_batches: validation cadence (steps) and size (batches; 0 = the whole validation set).
         checkpoint_every, log_every: bookkeeping cadence in steps.
@@ -201,6 +203,7 @@ class TrainConfig:
     hue: float = 0.05
     mixup: bool = True
     mixup_min: float = 0.3
+    aug_warmup: float = 0.0
     seed: int = 0
     val_every: int = 500
     val_batches: int = 20
@@ -225,6 +228,8 @@ class TrainConfig:
             raise ValueError(f"mixup_min must be in (0, 1], got {self.mixup_min}")
         if self.sdtw_gamma <= 0:
             raise ValueError(f"sdtw_gamma must be positive, got {self.sdtw_gamma}")
+        if not 0.0 <= self.aug_warmup <= 1.0:
+            raise ValueError(f"aug_warmup must be a fraction in [0, 1], got {self.aug_warmup}")
         if not 0.0 <= self.lr_warmup < 1.0:
             raise ValueError(f"lr_warmup must be a fraction in [0, 1), got {self.lr_warmup}")
         if len(self.scale) != 2 or not 0 < self.scale[0] <= self.scale[1]:

@@ -139,9 +139,10 @@ def compute_losses(
     total: int,
     generator: torch.Generator | None,
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """Forward one batch (augmented when ``generator`` is given) and return the total loss and its parts."""
+    """Forward one batch and return the total loss and its parts; augmented when ``generator`` is given and
+    ``step`` is past the clean warm-up (``TrainConfig.aug_warmup``)."""
     cfg = run.train
-    if generator is not None:
+    if generator is not None and step >= cfg.aug_warmup * total:
         with torch.no_grad():
             aug = augment_batch(
                 batch.expert_frames,
@@ -256,8 +257,14 @@ def train(
     cancel: Any = None,
     show_progress: bool = True,
     resume: bool = True,
+    init: str | Path | None = None,
 ) -> TrainResult:
-    """Train (or resume training of) OSVI-WM on ``train_set``; see the module docstring for the outputs."""
+    """Train (or resume training of) OSVI-WM on ``train_set``; see the module docstring for the outputs.
+
+    ``init`` starts a new run from the weights of another checkpoint or policy file with the same model
+    configuration (fine-tuning on new data, or a curriculum over task sets), with a fresh optimiser and schedule;
+    it is ignored when the run resumes from its own ``last.pt``.
+    """
     cfg = run.train
     device = torch.device(device)
     out = Path(out_dir)
@@ -313,6 +320,14 @@ def train(
         optimizer.load_state_dict(ckpt["optimizer"])
         scheduler.load_state_dict(ckpt["scheduler"])
         start_step, best_val = int(ckpt["step"]), ckpt.get("best_val_loss")
+    elif init is not None:
+        start = load_checkpoint(init, device)
+        diffs = _config_differences(
+            {"model": start["config"]["model"]}, {"model": run.to_dict()["model"], "train": {}}
+        )
+        if diffs:
+            raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")
+        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()})
     else:
         model.set_depth_prior(median_path_depth(train_set))
     metrics_path = out / "metrics.jsonl"
@@ -322,6 +337,8 @@ def train(
             "dataset_fingerprint": fingerprint,
             "tasks": list(train_set.tasks),
         }
+        if init is not None:
+            summary["init"] = str(init)
         write_json(out / "config.json", summary)
         trim_metrics(metrics_path, start_step)
         event = "resume" if start_step else "start"

@@ -1,10 +1,11 @@
 """`studio train`: train OSVI-WM on the episode store (the training and validation splits of ``studio.data``).
 
     studio train --config cpu|paper|paper-metaworld --data DIR --out RUN_DIR [--steps N] [--seed S]
-                 [--set model.field=value train.field=value ...] [--restart] [--device cpu]
+                 [--set model.field=value train.field=value ...] [--restart] [--init CKPT] [--device cpu]
 
 Re-running the same command after an interruption resumes from ``RUN_DIR/last.pt`` at the step it reached;
-``--restart`` starts over. Under ``torchrun --nproc_per_node K -m studio.cli train ...`` it trains with K
+``--restart`` starts over. ``--init CKPT`` starts a new run from another checkpoint's weights (fine-tuning a
+shipped policy on your own episodes, or a second stage of a curriculum over task sets). Under ``torchrun --nproc_per_node K -m studio.cli train ...`` it trains with K
 data-parallel processes.
 """
 
@@ -33,6 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--restart", action="store_true", help="ignore an existing checkpoint in --out")
+    parser.add_argument(
+        "--init", default=None, metavar="CKPT",
+        help="start from this checkpoint's or policy file's weights (same model configuration; fresh optimiser)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -86,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
             device=args.device,
             show_progress=not args.no_progress,
             resume=not args.restart,
+            init=args.init,
         )
     except (CheckpointMismatch, ValueError) as exc:
         print(f"studio train: {exc}", file=sys.stderr)

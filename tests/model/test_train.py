@@ -156,6 +156,28 @@ def test_resume_refuses_another_configuration_or_dataset(tmp_path):
     assert restarted.step == 1
 
 
+def test_a_run_can_start_from_another_checkpoints_weights(tmp_path):
+    from studio.model.osvi_wm import OSVIWM
+
+    first = tiny_run_config(max_steps=2, batch_size=4, val_every=100)
+    train(first, SyntheticPairs(), None, tmp_path / "a", show_progress=False)
+    trained = load_checkpoint(tmp_path / "a" / "last.pt")["model"]
+    second = first.with_overrides(["train.max_steps=1", "train.lr_max=1e-12", "train.lr_final=1e-12"])
+    result = train(second, SyntheticPairs(seed=5), None, tmp_path / "b", show_progress=False,
+                   init=tmp_path / "a" / "last.pt")  # fmt: skip
+    assert result.step == 1  # a new run: its own step count and schedule
+    after = load_checkpoint(tmp_path / "b" / "last.pt")["model"]
+    weights = [k for k in trained if trained[k].is_floating_point() and "running" not in k]  # BN stats move
+    assert all(torch.allclose(trained[k], after[k], atol=1e-6) for k in weights)
+    torch.manual_seed(second.train.seed)  # what the new run would have started from without init
+    own_init = OSVIWM(second.model).state_dict()
+    assert not all(torch.allclose(own_init[k], after[k], atol=1e-6) for k in weights)
+    assert json.loads((tmp_path / "b" / "config.json").read_text())["init"].endswith("last.pt")
+    other = first.with_overrides(["model.head_hidden=8"])
+    with pytest.raises(CheckpointMismatch, match="head_hidden"):
+        train(other, SyntheticPairs(), None, tmp_path / "c", show_progress=False, init=tmp_path / "a" / "last.pt")
+
+
 def test_cancellation_checkpoints_and_stops_and_progress_is_reported(tmp_path):
     seen = []
     result = train(
@@ -269,3 +291,22 @@ def test_the_cpu_architecture_learns_to_follow_the_demonstration():
         (val,) = [r for r in records(Path(d)) if r.get("split") == "val"]
     assert val["val_demo_effect_m"] > 0.1, val  # swapping in another task's demonstration moves the plan
     assert val["val_final_err_m"] < 0.1, val  # predicting the mean target gives 0.18 m
+
+
+def test_augmentation_starts_after_the_clean_warm_up():
+    from studio.model.batching import collate_pairs
+    from studio.model.osvi_wm import OSVIWM
+    from studio.model.train import compute_losses
+
+    run = tiny_run_config(aug_warmup=0.5)
+    torch.manual_seed(0)
+    core = OSVIWM(run.model).eval()
+    data = SyntheticPairs(n_tasks=2, episodes_per_task=2)
+    batch = collate_pairs([data[i] for i in (0, 1, 4, 5)], run.model.image_size)
+
+    def loss(step, generator):
+        return compute_losses(core, core, batch, run, step, 10, generator)[1]["loss_sdtw"]
+
+    clean = loss(0, None)
+    assert loss(4, torch.Generator().manual_seed(1)) == clean  # inside the warm-up: the pairs as recorded
+    assert loss(5, torch.Generator().manual_seed(1)) != clean  # from half-way on: augmented
