@@ -159,6 +159,10 @@ class TrainConfig:
         weight_decay, grad_clip: AdamW decay and global gradient-norm clipping (0 disables clipping).
         alpha_schedule, alpha, alpha_end, alpha_decay: α(τ) of 𝓛 = 𝓛_sdtw + α(τ)·𝓛_wm. "constant": α;
             "exponential": α_end + (α − α_end)·exp(−alpha_decay·τ/T) (1 → 0.05 over training for Meta-World).
+        alpha_warmup: fraction of the steps trained with α = 0 (no 𝓛_wm, no target encodings) before the schedule
+            starts. From random weights, 𝓛_wm from step 0 holds the plan at the mean path: the encoder's pooled
+            keypoints start out static, and pulling the predicted keypoints onto them erases what π read from the
+            demonstration (docs/results.md, session 4). Once π follows the demonstration, 𝓛_wm does no harm.
         wm_loss, stop_gradient: ablation switches.
         sdtw_gamma, sdtw_normalize, dense_points, gripper_weight: the waypoint loss (see ``losses``).
         crop, translate, scale, hflip, vflip, brightness, contrast, saturation, hue: augmentation ranges
@@ -186,6 +190,7 @@ class TrainConfig:
     alpha: float = 1.0
     alpha_end: float = 0.05
     alpha_decay: float = 10.0
+    alpha_warmup: float = 0.0
     wm_loss: bool = True
     stop_gradient: bool = True
     sdtw_gamma: float = 1e-3
@@ -228,6 +233,8 @@ class TrainConfig:
             raise ValueError(f"mixup_min must be in (0, 1], got {self.mixup_min}")
         if self.sdtw_gamma <= 0:
             raise ValueError(f"sdtw_gamma must be positive, got {self.sdtw_gamma}")
+        if not 0.0 <= self.alpha_warmup <= 1.0:
+            raise ValueError(f"alpha_warmup must be a fraction in [0, 1], got {self.alpha_warmup}")
         if not 0.0 <= self.aug_warmup <= 1.0:
             raise ValueError(f"aug_warmup must be a fraction in [0, 1], got {self.aug_warmup}")
         if not 0.0 <= self.lr_warmup < 1.0:
@@ -312,7 +319,7 @@ def preset(name: str) -> RunConfig:
             head_dropout=0.1,
         )
         train = TrainConfig(batch_size=16, epochs=10.0, val_every=250, checkpoint_every=100, lr_max=1e-3,
-                            lr_warmup=0.05, hflip=0.0, mixup=False)
+                            lr_warmup=0.05, hflip=0.0, mixup=False, alpha_warmup=0.1, aug_warmup=0.1)
         return RunConfig(model, train)
     raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
 

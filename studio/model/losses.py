@@ -90,7 +90,7 @@ def world_model_loss(pooled: torch.Tensor, target_pooled: torch.Tensor) -> torch
 
 def alpha(step: int, total_steps: int, cfg: TrainConfig) -> float:
     """α(τ) weighting the world-model loss at optimiser step ``step`` of ``total_steps``."""
-    if not cfg.wm_loss:
+    if not cfg.wm_loss or step < cfg.alpha_warmup * total_steps:
         return 0.0
     if cfg.alpha_schedule == "constant":
         return cfg.alpha

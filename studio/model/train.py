@@ -59,7 +59,9 @@ from studio.model.run_files import (
 
 CHECKPOINT_FORMAT = "osvi-wm-checkpoint/1"
 # TrainConfig fields that may change when a run is resumed (they do not change what is computed).
-_RESUMABLE_CHANGES = {"val_every", "val_batches", "checkpoint_every", "log_every", "num_workers"}
+# Settings a resumed run may change. ``max_steps``: re-running with another --steps lengthens or shortens the
+# run; the learning-rate schedule is recomputed for the new length from the step reached.
+_RESUMABLE_CHANGES = {"val_every", "val_batches", "checkpoint_every", "log_every", "num_workers", "max_steps"}
 
 
 @dataclass
@@ -158,7 +160,7 @@ def compute_losses(
     else:
         expert, agent, K = batch.expert_frames, batch.agent_frames, batch.K
     a = alpha_at(step, total, cfg)
-    use_wm = cfg.wm_loss and core.world_model is not None
+    use_wm = cfg.wm_loss and core.world_model is not None and a > 0.0
     mode = ("detached" if cfg.stop_gradient else "grad") if use_wm else "none"
     dtype = torch.bfloat16 if cfg.precision == "bf16" else None
     with torch.autocast(device_type=agent.device.type, dtype=dtype, enabled=dtype is not None):

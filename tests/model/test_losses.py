@@ -71,6 +71,9 @@ def test_alpha_schedules():
     assert alpha(100, 100, exp) == pytest.approx(0.05 + 0.95 * math.exp(-10))
     assert alpha(10, 100, exp) == pytest.approx(0.05 + 0.95 * math.exp(-1))
     assert alpha(5, 100, TrainConfig(wm_loss=False)) == 0.0
+    late = TrainConfig(alpha_warmup=0.2, alpha_schedule="exponential")
+    assert alpha(0, 100, late) == alpha(19, 100, late) == 0.0  # no world-model loss during the warm-up
+    assert alpha(20, 100, late) == alpha(20, 100, exp)  # then the schedule, timed from the start of training
 
 
 def test_waypoint_errors():

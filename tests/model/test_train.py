@@ -156,6 +156,15 @@ def test_resume_refuses_another_configuration_or_dataset(tmp_path):
     assert restarted.step == 1
 
 
+def test_a_resumed_run_can_be_lengthened(tmp_path):
+    run = tiny_run_config(max_steps=2, batch_size=4, val_every=100, log_every=1)
+    train(run, SyntheticPairs(), None, tmp_path, show_progress=False)
+    longer = train(run.with_overrides(["train.max_steps=4"]), SyntheticPairs(), None, tmp_path, show_progress=False)
+    assert longer.step == 4 and [r["step"] for r in records(tmp_path) if "loss" in r] == [1, 2, 3, 4]
+    resumes = [r for r in records(tmp_path) if r.get("event") == "resume"]
+    assert resumes and resumes[-1]["step"] == 2 and resumes[-1]["total_steps"] == 4
+
+
 def test_a_run_can_start_from_another_checkpoints_weights(tmp_path):
     from studio.model.osvi_wm import OSVIWM
 
@@ -310,3 +319,11 @@ def test_augmentation_starts_after_the_clean_warm_up():
     clean = loss(0, None)
     assert loss(4, torch.Generator().manual_seed(1)) == clean  # inside the warm-up: the pairs as recorded
     assert loss(5, torch.Generator().manual_seed(1)) != clean  # from half-way on: augmented
+
+
+def test_no_world_model_loss_during_its_warm_up(tmp_path):
+    run = tiny_run_config(max_steps=4, batch_size=4, val_every=100, log_every=1, alpha_warmup=0.5)
+    train(run, SyntheticPairs(), None, tmp_path, show_progress=False)
+    logged = {r["step"]: r for r in records(tmp_path) if "loss" in r}
+    assert [logged[s]["alpha"] for s in (1, 2, 3, 4)] == [0.0, 0.0, 1.0, 1.0]
+    assert "loss_wm" not in logged[2] and logged[3]["loss_wm"] > 0.0  # no target encodings until then
