@@ -8,6 +8,11 @@ waypoint is reached). The controller:
   grasp correction from the wrist depth camera if enabled (:mod:`studio.sim.grasp_correction`, three
   iterations), descends, closes the gripper and waits for the fingers to settle;
 * at a *release* (closed → open) waypoint, arrives closed, then opens and waits;
+* reads a change of the gripper flag between two waypoints as happening at the *lower* of the two: the
+  gripper closes and opens where the hand is down at the object or the zone. A waypoint set fitted to a dense
+  demonstrated path (the model's, by Soft-DTW) may put the point at the object on either side of the change —
+  open at the object and closed at the carry point above, or closed at the object — and both mean "grasp at
+  the object"; our scripted plans put the flag on the lower point already and run unchanged;
 * never resets the scene. After the last waypoint the caller may check success, take a fresh
   observation and call :meth:`WaypointController.execute` again with new waypoints — re-planning
   inside the same episode.
@@ -27,6 +32,18 @@ from studio.sim.env import WORKSPACE, SimEnv
 from studio.sim.grasp_correction import segment_largest
 
 GRIPPER_THRESHOLD = 0.5
+
+
+def gripper_flags(waypoints: np.ndarray) -> np.ndarray:
+    """The gripper state (closed = True) to hold on arrival at each of the (K, 4) waypoints: the flags as given,
+    except that a change between two consecutive waypoints is moved onto the lower of them (module docstring)."""
+    wps = np.asarray(waypoints, dtype=np.float64)
+    given = wps[:, 3] >= GRIPPER_THRESHOLD
+    flags = given.copy()
+    for i in range(len(wps) - 1):
+        if given[i] != given[i + 1] and wps[i, 2] < wps[i + 1, 2]:
+            flags[i] = given[i + 1]  # the change happens down here, not at the higher point that follows
+    return flags
 
 
 @dataclass
@@ -149,8 +166,9 @@ class WaypointController:
         start = self.env.steps
         reached, corrections = [], []
         closed = self.env.gripper_cmd >= GRIPPER_THRESHOLD
+        flags = gripper_flags(wps)
         for i, w in enumerate(wps):
-            pos, want_closed = w[:3].copy(), bool(w[3] >= GRIPPER_THRESHOLD)
+            pos, want_closed = w[:3].copy(), bool(flags[i])
             self._event("waypoint", index=i, total=len(wps), position=pos.tolist(), closed=want_closed)
             if want_closed and not closed:  # grasp
                 pos[2] = max(pos[2], cfg.min_grasp_z.get(self.env.robot, 0.03))

@@ -55,3 +55,26 @@ def test_grasp_correction_centres_on_an_offset_object(env_factory):
     assert np.linalg.norm(corrected[:2] - obj[:2]) < 0.005
     assert np.linalg.norm(env.ee_pos[:2] - obj[:2]) < 0.006
     assert sum(1 for k, i in events if k == "grasp_correction" and i["found"]) == 3
+
+
+def test_a_gripper_change_happens_at_the_lower_of_its_two_waypoints():
+    from studio.sim.waypoints import gripper_flags
+
+    scripted = np.array([[0, 0, 0.045, 1], [0, 0, 0.15, 1], [0, 1, 0.15, 1], [0, 1, 0.055, 0], [0, 1, 0.15, 0]])
+    assert gripper_flags(scripted).tolist() == [True, True, True, False, False]  # already on the lower points
+    # The same pick and place summarised the other way round: open at the object, closed above the zone.
+    shifted = np.array([[0, 0, 0.25, 0], [0, 0, 0.05, 0], [0, 1, 0.16, 1], [0, 1, 0.04, 1], [0, 1, 0.11, 0]])
+    assert gripper_flags(shifted).tolist() == [False, True, True, False, False]
+
+
+def test_a_plan_that_closes_after_the_object_still_picks_and_places(env_factory):
+    env = env_factory("pick_place", "panda")
+    env.reset("pick_place/cube->red", 4)
+    scripted = expert_waypoints(env)
+    grasp, place = scripted[0, :3], scripted[3, :3]
+    shifted = np.array([
+        [*(grasp + [0, 0, 0.2]), 0], [*grasp, 0],  # above the cube and at it, still open
+        [*(place + [0, 0, 0.1]), 1], [*place, 1],  # carried to the zone and lowered, closed
+        [*(place + [0, 0, 0.08]), 0],  # opened on the way up
+    ])  # fmt: skip
+    assert WaypointController(env).execute(shifted).success
