@@ -58,9 +58,9 @@ from studio.model.run_files import (
 )
 
 CHECKPOINT_FORMAT = "osvi-wm-checkpoint/1"
-# TrainConfig fields that may change when a run is resumed (they do not change what is computed).
-# Settings a resumed run may change. ``max_steps``: re-running with another --steps lengthens or shortens the
-# run; the learning-rate schedule is recomputed for the new length from the step reached.
+# TrainConfig fields that may change when a run is resumed: bookkeeping, which does not change what is computed,
+# and ``max_steps`` — another --steps lengthens or shortens the run, its learning-rate schedule recomputed for the
+# new length from the step reached.
 _RESUMABLE_CHANGES = {"val_every", "val_batches", "checkpoint_every", "log_every", "num_workers", "max_steps"}
 
 

@@ -3,10 +3,11 @@
     studio train --config cpu|paper|paper-metaworld --data DIR --out RUN_DIR [--steps N] [--seed S]
                  [--set model.field=value train.field=value ...] [--restart] [--init CKPT] [--device cpu]
 
-Re-running the same command after an interruption resumes from ``RUN_DIR/last.pt`` at the step it reached;
-A different ``--steps`` lengthens or shortens the resumed run (its learning-rate schedule follows the new
-length); any other change of configuration is refused. ``--restart`` starts over. ``--init CKPT`` starts a new run from another checkpoint's weights (fine-tuning a
-shipped policy on your own episodes, or a second stage of a curriculum over task sets). Under ``torchrun --nproc_per_node K -m studio.cli train ...`` it trains with K
+Re-running the same command after an interruption resumes from ``RUN_DIR/last.pt`` at the step it reached; a
+different ``--steps`` lengthens or shortens the resumed run (its learning-rate schedule follows the new length),
+any other change of configuration is refused. ``--restart`` starts over. ``--init CKPT`` starts a new run from
+another checkpoint's weights (fine-tuning a shipped policy on your own episodes, or a second stage of a
+curriculum over task sets). Under ``torchrun --nproc_per_node K -m studio.cli train ...`` it trains with K
 data-parallel processes.
 """
 
