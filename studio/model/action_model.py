@@ -6,8 +6,9 @@ before the world model (ablation). A fixed temporal sin/cos code of the frame in
 a fixed 2-D sin/cos code of the cell (the paper names only the temporal code; the reference code's flattened
 (t, h, w) index codes the cell too, and without it attention could not tell cells apart). The block-causal
 transformer (``transformer``; joint attention as in the paper, or divided time-then-space attention —
-``ModelConfig.action_attention``, on in the ``cpu`` preset, reasons in ``transformer``) then gives, at the last frame, H·W output tokens: the latent action a_i, shaped like
-a state (C, H, W).
+``ModelConfig.action_attention``; "cross" adds a step where agent tokens attend to all expert tokens — reasons
+in ``transformer``) then gives, at the last frame, H·W output tokens: the latent action a_i, shaped like a state
+(C, H, W).
 
 The expert prefix is processed once (``context``) and the agent frames one by one (``step``) on top of its
 key/value cache: a_i is identical to the last frame's output of one causal pass over all N + i frames.
@@ -38,12 +39,13 @@ class ActionModel(nn.Module):
         super().__init__()
         if len(state_shape) not in (1, 3):
             raise ValueError(f"ActionModel state_shape must be (C, H, W) or (D,), got {state_shape}")
-        if attention not in ("joint", "divided"):
-            raise ValueError(f"ActionModel attention must be 'joint' or 'divided', got {attention!r}")
+        if attention not in ("joint", "divided", "cross"):
+            raise ValueError(f"ActionModel attention must be 'joint', 'divided' or 'cross', got {attention!r}")
         self.state_shape = tuple(state_shape)
         dim = state_shape[0]
         self.transformer = CausalTransformer(
-            dim, blocks, heads, attn_dim, mlp_dim, dropout, divided=attention == "divided"
+            dim, blocks, heads, attn_dim, mlp_dim, dropout,
+            divided=attention in ("divided", "cross"), cross=attention == "cross",
         )
         if len(state_shape) == 3:
             _, h, w = state_shape
@@ -75,7 +77,7 @@ class ActionModel(nn.Module):
     # ---------------------------------------------------------------- API
     def context(self, expert_states: torch.Tensor) -> KVCache:
         """Run the expert prefix (B, N, *state_shape) and return its cache."""
-        _, cache = self.transformer(self._tokens(expert_states, 0))
+        _, cache = self.transformer(self._tokens(expert_states, 0), context_frames=expert_states.shape[1])
         return cache
 
     def step(self, agent_state: torch.Tensor, cache: KVCache) -> tuple[torch.Tensor, KVCache]:
@@ -83,7 +85,8 @@ class ActionModel(nn.Module):
         out, cache = self.transformer(self._tokens(agent_state.unsqueeze(1), cache.frames), cache)
         return self._states(out)[:, 0], cache
 
-    def forward(self, sequence: torch.Tensor) -> torch.Tensor:
-        """Outputs at every position of a full (B, T, *state_shape) sequence (one causal pass, no cache)."""
-        out, _ = self.transformer(self._tokens(sequence, 0))
+    def forward(self, sequence: torch.Tensor, expert_frames: int) -> torch.Tensor:
+        """Outputs at every position of a full (B, T, *state_shape) sequence whose first ``expert_frames`` frames
+        are the expert's (one causal pass, no cache)."""
+        out, _ = self.transformer(self._tokens(sequence, 0), context_frames=expert_frames)
         return self._states(out)

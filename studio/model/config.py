@@ -73,8 +73,9 @@ class ModelConfig:
         channels_last: run the convolutional trunk in channels-last memory layout (faster on CPU).
         state_channels: 1×1-convolution reduction of the trunk's maps to this many channels; 0 keeps them.
         action_blocks, action_heads, action_attn_dim, action_mlp_dim, action_dropout: the causal transformer π.
-        action_attention: "joint" (the paper: every token attends to all tokens of frames ≤ t) or "divided"
-            (time, then space attention in each block; see ``transformer``); ``cpu`` uses "divided".
+        action_attention: "joint" (the paper: every token attends to all tokens of frames ≤ t), "divided"
+            (time, then space attention in each block; see ``transformer``; ``cpu`` uses it) or "cross"
+            (divided, plus a step where agent tokens attend to all expert tokens).
         wm_blocks, wm_heads, wm_width, wm_mlp_dim, wm_dropout: the causal transformer 𝒲.
         wm_tokens: "map" (the paper: one dense token per step) or "cells" (a token per cell; see ``world_model``).
         wm_residual: 𝒲 predicts the change of state, r_{i+1} = r_i + 𝒲(…), starting from the identity (see
@@ -99,7 +100,7 @@ class ModelConfig:
     action_attn_dim: int = 128
     action_mlp_dim: int = 512
     action_dropout: float = 0.0
-    action_attention: Literal["joint", "divided"] = "joint"
+    action_attention: Literal["joint", "divided", "cross"] = "joint"
     wm_blocks: int = 1
     wm_heads: int = 4
     wm_width: int = 512
