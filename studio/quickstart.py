@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--replan", type=int, default=0, help="re-plans allowed per evaluation rollout")
     parser.add_argument("--seed", type=int, default=0, help="seed of collection, training and evaluation")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes")
-    parser.add_argument("--set", nargs="*", default=[], metavar="SECTION.FIELD=VALUE",
+    parser.add_argument("--set", nargs="*", action="extend", default=[], metavar="SECTION.FIELD=VALUE",
                         help="training config overrides, as for studio train")  # fmt: skip
     add_data_dir_argument(parser)
 

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scene", default="pick_place", help="scene (or split JSON path) that selects the tasks"
     )
     parser.add_argument(
-        "--set", nargs="*", default=[], metavar="SECTION.FIELD=VALUE", help="config overrides"
+        "--set", nargs="*", action="extend", default=[], metavar="SECTION.FIELD=VALUE", help="config overrides"
     )
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")

@@ -134,3 +134,9 @@ def test_trains_on_a_real_episode_store(tmp_path):
     ckpt = load_checkpoint(tmp_path / "run" / "last.pt")
     assert ckpt["step"] == 2 and ckpt["tasks"][:2] == ["pick_place/cube->red", "pick_place/cube->green"]
     assert ckpt["dataset_fingerprint"]
+
+
+def test_repeated_set_flags_all_apply():
+    """`--set a=1 --set b=2` keeps both overrides (argparse's plain nargs would keep only the last flag's)."""
+    args = _args("--data", "x", "--out", "y", "--set", "train.val_every=7", "--set", "model.action_attention=cross")
+    assert args.set == ["train.val_every=7", "model.action_attention=cross"]
