@@ -9,7 +9,9 @@ K' gives the same camera-frame point (``geometry``), which is what keeps every a
 One draw per *video*: all frames of an agent clip share their warp and colours, so the future frames that serve
 as world-model targets are seen like the input frame (the reference draws each agent frame independently). The
 expert video gets its own draw, except flips, which are shared by an expert and its agent clips: mirroring only
-one of them would mirror the task (left target ↔ right target).
+one of them mirrors the layout (left target ↔ right target). ``expert_hflip`` does that on purpose, for tasks
+named by colour rather than place (see ``TrainConfig``): the expert video alone is mirrored on top of the shared
+flip.
 
 Mixup (paper appendix B, "asymmetric demonstration image mixup"): each expert video and each agent clip is mixed
 as β·I + (1 − β)·J with β ~ U(mixup_min, 1) and J the (augmented) first frame of a video from a *different task*
@@ -173,14 +175,16 @@ def augment_batch(
 ) -> AugmentedBatch:
     """Augment uint8 expert videos (U, N, 3, H, W) and agent clips (B, M, 3, H, W) of pairs ``expert_ids`` → U.
 
-    Flips are drawn per expert and shared with its agent clips; everything else is drawn per video.
+    Flips are drawn per expert and shared with its agent clips (``expert_hflip`` then mirrors the expert
+    alone); everything else is drawn per video.
     """
     h, w = agent_frames.shape[-2:]
     u, b = expert_frames.shape[0], agent_frames.shape[0]
     hflip = torch.rand(u, generator=g) < cfg.hflip
     vflip = torch.rand(u, generator=g) < cfg.vflip
     ids = expert_ids.cpu()
-    A_exp = sample_affine(u, (h, w), cfg, g, hflip, vflip)
+    expert_only = torch.rand(u, generator=g) < cfg.expert_hflip if cfg.expert_hflip > 0 else torch.zeros_like(hflip)
+    A_exp = sample_affine(u, (h, w), cfg, g, hflip ^ expert_only, vflip)
     A_agt = sample_affine(b, (h, w), cfg, g, hflip[ids], vflip[ids])
     expert = color_jitter(warp(expert_frames.float() / 255.0, A_exp), cfg, g)
     agent = color_jitter(warp(agent_frames.float() / 255.0, A_agt), cfg, g)

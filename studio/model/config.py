@@ -174,6 +174,10 @@ class TrainConfig:
         sdtw_gamma, sdtw_normalize, dense_points, gripper_weight: the waypoint loss (see ``losses``).
         crop, translate, scale, hflip, vflip, brightness, contrast, saturation, hue: augmentation ranges
             (fractions of the image size for crop/translate; scale is a zoom range; flips are probabilities).
+        expert_hflip: probability of mirroring an expert video alone, its agent clips not. Our tasks are named
+            by colours (``bar->blue``), which a mirror keeps, so the mirrored video is still a demonstration of
+            the task; what it breaks is "grasp where the demonstration grasped", the same-place shortcut a π
+            with per-cell time attention finds first (docs/results.md, session 5).
         mixup, mixup_min: asymmetric demonstration mixup with β ~ U(mixup_min, 1) and a partner of another task.
         aug_warmup: fraction of the steps trained on clean pairs (no augmentation, no mixup) before both start —
             augmentation noise lengthens the plateau before π starts reading the demonstration (docs/results.md).
@@ -209,6 +213,7 @@ class TrainConfig:
     scale: tuple[float, float] = (0.95, 1.05)
     hflip: float = 0.5
     vflip: float = 0.0
+    expert_hflip: float = 0.0
     brightness: float = 0.4
     contrast: float = 0.4
     saturation: float = 0.4

@@ -85,6 +85,17 @@ def test_flips_are_shared_by_an_expert_and_its_agent_clips():
     assert seen == {True, False}
 
 
+def test_expert_hflip_mirrors_the_expert_video_alone():
+    cfg = TrainConfig(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, expert_hflip=1.0, **NO_COLOUR)
+    expert = torch.randint(0, 256, (2, 2, 3, 24, 32), dtype=torch.uint8)
+    agent = torch.randint(0, 256, (2, 3, 3, 24, 32), dtype=torch.uint8)
+    out = augment_batch(expert, agent, K.float()[None].repeat(2, 1, 1), torch.arange(2), torch.arange(2),
+                        torch.arange(2), cfg, torch.Generator().manual_seed(0))  # fmt: skip
+    assert torch.allclose(out.expert_frames, expert.flip(-1).float() / 255, atol=1e-5)
+    assert torch.allclose(out.agent_frames, agent.float() / 255, atol=1e-6)  # the agent keeps its layout
+    assert torch.allclose(out.K, K.float()[None].repeat(2, 1, 1))  # and its labels
+
+
 def test_mixup_partners_come_from_another_task():
     g = torch.Generator().manual_seed(0)
     tasks = torch.tensor([0, 0, 1, 2, 2, 2])
