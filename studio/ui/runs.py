@@ -119,6 +119,17 @@ def read_metrics(run_dir: Path) -> dict[str, np.ndarray]:
     return out
 
 
+def _policy_label(policy: Path) -> str:
+    """"shipped policy NAME", plus the one-line summary of its measured results from ``NAME.json`` if present
+    (so that nobody mistakes a weak default policy for a good one)."""
+    label = f"shipped policy {policy.stem}"
+    try:
+        summary = json.loads(policy.with_suffix(".json").read_text()).get("summary")
+    except (FileNotFoundError, json.JSONDecodeError, AttributeError):
+        summary = None
+    return f"{label} — {summary}" if isinstance(summary, str) and summary else label
+
+
 class RunRegistry:
     """Runs under ``<data-dir>/runs``, shipped policies, and the active checkpoint."""
 
@@ -141,7 +152,7 @@ class RunRegistry:
             files.append(Path(env))
         if self.policy_dir.is_dir():
             files += sorted(f for f in self.policy_dir.glob("*.pt") if not f.name.endswith(".decoder.pt"))
-        return [Checkpoint(f"default/{f.stem}", str(f), f"shipped policy {f.stem}") for f in files]
+        return [Checkpoint(f"default/{f.stem}", str(f), _policy_label(f)) for f in files]
 
     def runs(self) -> list[RunInfo]:
         out = []
