@@ -38,6 +38,7 @@ class Checkpoint:
     label: str
     run_id: str | None = None
     step: int | None = None
+    summary: str = ""  # a shipped policy's measured results in one line (``NAME.json``), shown beside it
 
     @property
     def is_oracle(self) -> bool:
@@ -119,15 +120,16 @@ def read_metrics(run_dir: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def _policy_label(policy: Path) -> str:
-    """"shipped policy NAME", plus the one-line summary of its measured results from ``NAME.json`` if present
-    (so that nobody mistakes a weak default policy for a good one)."""
-    label = f"shipped policy {policy.stem}"
+def _shipped(policy: Path) -> Checkpoint:
+    """A shipped policy, with the one-line summary of its measured results from ``NAME.json`` if present (so
+    that nobody mistakes a weak default policy for a good one)."""
     try:
         summary = json.loads(policy.with_suffix(".json").read_text()).get("summary")
     except (FileNotFoundError, json.JSONDecodeError, AttributeError):
         summary = None
-    return f"{label} — {summary}" if isinstance(summary, str) and summary else label
+    summary = summary if isinstance(summary, str) else ""
+    label = f"shipped policy {policy.stem}" + (f" — {summary}" if summary else "")
+    return Checkpoint(f"default/{policy.stem}", str(policy), label, summary=summary)
 
 
 class RunRegistry:
@@ -152,7 +154,7 @@ class RunRegistry:
             files.append(Path(env))
         if self.policy_dir.is_dir():
             files += sorted(f for f in self.policy_dir.glob("*.pt") if not f.name.endswith(".decoder.pt"))
-        return [Checkpoint(f"default/{f.stem}", str(f), _policy_label(f)) for f in files]
+        return [_shipped(f) for f in files]
 
     def runs(self) -> list[RunInfo]:
         out = []

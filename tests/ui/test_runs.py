@@ -58,6 +58,7 @@ def test_active_checkpoint_defaults_persists_and_falls_back(tmp_path):
     assert reg.active().label == "shipped policy osvi-pick-place"
     (policies / "osvi-pick-place.json").write_text('{"summary": "3 % held-out success"}')  # its measured results
     assert reg.active().label == "shipped policy osvi-pick-place — 3 % held-out success"
+    assert reg.active().summary == "3 % held-out success"
     _run(tmp_path / "data", "train-a")
     reg.set_active("train-a/best")
     assert (

@@ -154,6 +154,7 @@ class ImitatePanel:
         ck = self.app.runs.active()
         self._show_scene(task, seed, f"Plan for **{task}**, seed {seed}.")
         self.tab.view.clear_overlay("plan")
+        self.latent_strip.visible = False  # the previous plan's images must not pass for this one's
         self.plan_job = self.app.jobs.submit(
             "plan", {"checkpoint": ck.path, "expert_episode_id": demo, "task": task, "seed": seed,
                      "robot": self._robot(task)}, started_by=self.tab.client.client_id,
@@ -264,7 +265,7 @@ class ImitatePanel:
             "Policy: **oracle — execution ceiling** (plans from the simulator's true state; no trained "
             "checkpoint is active)"
             if ck.is_oracle
-            else f"Policy: `{ck.id}`"
+            else f"Policy: `{ck.id}`" + (f" — {ck.summary}" if ck.summary else "")
         )
         if self._shown.get("policy") != text:
             self._shown["policy"] = text
