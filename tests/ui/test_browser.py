@@ -451,3 +451,36 @@ def test_workers_panel_lists_the_embedded_workers(studio, page, shots):
     (sim,) = studio.hub.directory.workers("sim")
     assert sim.status.sessions == 1, "this tab's teleop session runs on the embedded sim worker"
     _shot(page, shots / "workers.png")
+
+
+def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
+    """The policy shipped with the studio, on a held-out task: Plan shows waypoints and decoded latent images,
+    Execute finishes with an outcome recorded against it."""
+    tab = _tab(studio)
+    im = tab.imitate
+    shipped = studio.runs.default_policies()
+    assert shipped, "no shipped policy"
+    studio.runs.set_active(shipped[0].id)
+    _click(page.get_by_role("tab", name="Imitate"))
+    _wait(lambda: shipped[0].id in im.policy.content, 20, "the shipped policy to be active")
+    assert shipped[0].summary and shipped[0].summary in im.policy.content, "its measured results are shown"
+    im.task.value = HELD_OUT + " (held-out)"
+    _click(page.get_by_role("button", name="Make a scripted demonstration"))
+    page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
+    before = im.plan_job
+    _click(page.get_by_role("button", name="Plan", exact=True))
+    job = _wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
+    assert job.spec["checkpoint"] == shipped[0].path
+    _wait(lambda: job.result is not None and im.latent_strip.visible, 120, "the decoded latent trajectory")
+    page.get_by_text("Planned in").first.wait_for(timeout=60_000)
+    assert job.result["latent_images"] == 5  # r_2 … r_6 of the shipped policy, decoded
+    assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
+    time.sleep(1.0)  # let the browser draw the new images before the screenshot
+    _shot(page, shots / "imitate-plan-shipped.png", scroll_to="Predicted latent trajectory")
+    im.speed.value = "as fast as possible"
+    _click(page.get_by_role("button", name="Execute", exact=True))
+    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
+    result = _wait(lambda: im.rollout.result, 30, "the rollout's result")
+    _shot(page, shots / "imitate-outcome-shipped.png")
+    row = [r for r in studio.store.catalog.rollouts(task=HELD_OUT) if r.id == result["rollout_id"]]
+    assert row and row[0].checkpoint_id == shipped[0].id

@@ -1,0 +1,59 @@
+"""The policy shipped in ``studio/policies``: small enough, with its decoder, and plans a held-out task."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from studio.cli import main
+from studio.data.paths import SHIPPED_POLICY_DIR
+from studio.data.splits import load_split
+from studio.data.store import EpisodeStore
+from studio.sim.env import WORKSPACE
+
+torch.set_num_threads(1)
+POLICIES = sorted(f for f in SHIPPED_POLICY_DIR.glob("*.pt") if not f.name.endswith(".decoder.pt"))
+
+
+def test_a_policy_ships_with_its_decoder_and_within_the_size_limit():
+    assert POLICIES, f"no policy in {SHIPPED_POLICY_DIR}"
+    for policy in POLICIES:
+        assert policy.stat().st_size <= 25 * 2**20, f"{policy.name} is over 25 MB"
+        assert policy.with_name(f"{policy.stem}.decoder.pt").is_file(), f"{policy.name} has no latent decoder"
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory):
+    """One scripted Sawyer demonstration of each held-out pick-and-place task, collected as a user would."""
+    root = tmp_path_factory.mktemp("store")
+    tasks = list(load_split("pick_place").test)
+    assert main(["collect", "--robot", "sawyer", "--tasks", *tasks, "--episodes", "1", "--seed", "5",
+                 "--data-dir", str(root), "--no-progress"]) == 0  # fmt: skip
+    with EpisodeStore(root) as store:
+        return {t: store.load_frames(store.episodes(task=t)[0].id) for t in tasks}
+
+
+@pytest.mark.parametrize("policy", POLICIES, ids=lambda p: p.stem)
+def test_the_shipped_policy_plans_a_held_out_task(policy, demos):
+    from studio.model.planner import Planner
+    from studio.sim.env import SimEnv
+    from studio.sim.waypoints import gripper_flags
+
+    planner = Planner.load(policy)
+    releases = []
+    with SimEnv("pick_place", "panda") as env:
+        for i, (task, frames) in enumerate(sorted(demos.items())):
+            env.reset(task, seed=100 + i)
+            cam = env.camera_model()
+            res = planner.plan(frames, env.render(), cam.K, cam.T_world_cam)
+            wps = res.waypoints_world
+            assert wps.shape == (5, 4) and np.isfinite(wps).all()
+            assert (wps[:, :3] > WORKSPACE[0] - 0.1).all() and (wps[:, :3] < WORKSPACE[1] + 0.1).all(), wps
+            flags = gripper_flags(wps)
+            assert flags.any(), "the plan never closes the gripper"
+            last_closed = np.flatnonzero(flags)[-1]
+            releases.append(wps[min(last_closed + 1, 4), :2])  # where the gripper opens again
+            assert res.latent_states.shape[0] > 0 and np.isfinite(res.pooled_states).all()
+    # the two held-out tasks put the bar in different zones (14 cm apart): the plans follow their demonstrations
+    assert np.linalg.norm(releases[0] - releases[1]) > 0.05, releases
