@@ -21,13 +21,13 @@ its first step, what happened at that place during the demonstration (over 10 fr
 the space step relays it to the cells that look alike (the same object elsewhere in the agent's scene).
 Causality and caching are the same in both layouts; the cache holds the time-attention keys and values.
 
-Cross step (``cross``, the ``cpu`` preset's "cross" layout): after time and space, every token of a frame *after
-the context* (π's agent frames) also attends to every token of the context frames (π's expert frames, all cells,
-all times) — a content-addressed look-up of the demonstration. Divided attention alone relays "which object
-moved" only by hopping time → space → time; measured on the pick-and-place data, a 1 000-step divided π read the
-target zone (fixed place) but grasped a median 14.5 cm from the demonstrated object, with training path error
-flat at 0.076 m from step 300 on (docs/results.md). The context tokens themselves do not cross-attend, so their
-outputs are those of the divided layout, and the cross keys and values of the context are cached once.
+Cross step (``cross``; π's ``action_attention="cross"``, an option — the ``cpu`` preset stays divided): after
+time and space, every token of a frame *after the context* (π's agent frames) also attends to every token of the
+context frames (π's expert frames, all cells, all times) — a content-addressed look-up of the demonstration, for
+matching the demonstrated object by appearance in one hop. The context tokens themselves do not cross-attend, so
+their outputs are those of the divided layout, and the cross keys and values of the context are cached once.
+Measured on the pick-and-place data it did not help within 500 steps (validation path error 0.079 m, as
+divided; docs/results.md, session 5).
 
 Caching: ``forward(x_new, cache)`` processes new frames given the keys/values of all earlier frames and returns
 the extended cache. Feeding frames one at a time with the cache gives exactly the outputs of one pass over the
@@ -239,5 +239,5 @@ class CausalTransformer(nn.Module):
             x, kv, context = block(x, past, past_frames, context, context_frames)
             layers.append(kv)
             contexts.append(context)
-        has_context = all(c is not None for c in contexts)
-        return self.norm(x), KVCache(layers, past_frames + x.shape[1], contexts if has_context else None)
+        context = contexts if contexts[0] is not None else None  # every block has the cross step, or none
+        return self.norm(x), KVCache(layers, past_frames + x.shape[1], context)
