@@ -5,7 +5,8 @@
 
 Each policy (the main checkpoint first, then e.g. ablations trained on the same data and budget) is evaluated on
 the scene's held-out tasks once per ``--replan`` value, with the same seeds — so every row sees the same scenes and
-demonstrations. Writes the Markdown (per-task success, the reached/grasped/placed breakdown, planning time, wall
+demonstrations. Writes the Markdown (per-task success, the mean over each of the split's test groups — Meta-World's
+easy and hard, the layout of the paper's Table 1 — the reached/grasped/placed breakdown, planning time, wall
 time) and, beside it, the full JSON reports. ``oracle`` as a checkpoint gives the execution ceiling.
 """
 
@@ -33,14 +34,26 @@ def _mean(report: dict, key: str) -> str:
     return f"{sum(v[key] * v['rollouts'] for v in report['tasks'].values()) / n:.1%}"
 
 
-def render_markdown(reports: list[tuple[str, int, dict]]) -> str:
-    """Rows of (policy name, replans, evaluation report) → a Markdown table (one row per policy × replans)."""
+def _group_mean(report: dict, tasks) -> str:
+    """Mean success over a group's tasks (the paper's Table 1 averages tasks), or – if none was evaluated."""
+    rates = [report["tasks"][t]["success"] for t in tasks if t in report["tasks"]]
+    return f"{sum(rates) / len(rates):.1%}" if rates else "–"
+
+
+def render_markdown(reports: list[tuple[str, int, dict]], groups: dict[str, tuple[str, ...]] | None = None) -> str:
+    """Rows of (policy name, replans, evaluation report) → a Markdown table (one row per policy × replans).
+
+    ``groups`` (a split's ``test_groups``, e.g. Meta-World's easy/hard) adds a column per group after the tasks.
+    """
+    groups = groups or {}
     tasks = sorted({t for _, _, r in reports for t in r["tasks"]})
-    head = ["policy", "re-plans", *tasks, "all", "reached", "grasped", "placed", "plan ms", "rollouts", "wall min"]
+    head = ["policy", "re-plans", *tasks, *groups, "all", "reached", "grasped", "placed", "plan ms", "rollouts",
+            "wall min"]  # fmt: skip
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, replan, r in reports:
         per_task = [f"{r['tasks'][t]['success']:.1%}" if t in r["tasks"] else "–" for t in tasks]
-        row = [name, str(replan), *per_task, f"**{r['success']:.1%}**", _mean(r, "reached"),
+        per_group = [_group_mean(r, g) for g in groups.values()]
+        row = [name, str(replan), *per_task, *per_group, f"**{r['success']:.1%}**", _mean(r, "reached"),
                _mean(r, "grasped"), _mean(r, "placed"), f"{r['mean_planning_ms']:.0f}", str(r["rollouts"]), f"{r['wall_s'] / 60:.1f}"]  # fmt: skip
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
@@ -60,6 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from studio.backend.evaluation import evaluate, resolve_tasks
+    from studio.data.splits import load_split
 
     tasks = resolve_tasks("held-out", args.scene)
     reports: list[tuple[str, int, dict]] = []
@@ -68,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"== {name}, re-plans {replan}", file=sys.stderr, flush=True)
             report = evaluate(checkpoint, tasks, args.episodes, args.seed, replan, args.workers, args.data_dir)
             reports.append((name, replan, report))
-    table = render_markdown(reports)
+    table = render_markdown(reports, load_split(args.scene).test_groups)
     machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, {platform.platform()}"
     text = (f"Held-out tasks of `{args.scene}` ({', '.join(tasks)}), {args.episodes} rollouts per task, seed "
             f"{args.seed}; {machine}.\n\n{table}")  # fmt: skip

@@ -10,7 +10,7 @@ The robot decides the role: the Sawyer demonstrates (``expert``) and the Panda i
 Meta-World (``--scene metaworld``) has only the Sawyer and its own scripted policies
 (:mod:`studio.sim.metaworld_experts`); as in the paper, expert and agent come from the same pool, so its
 episodes are stored once, as role ``expert`` with embodiment ``sawyer``, and the training view pairs the
-pool with itself (``PairDataset(..., scene="metaworld", agent_roles=("expert",))``).
+pool with itself (``PairDataset(..., scene="metaworld")`` does so by default).
 Frames are rendered only for the stored frames (``--min-frames``, ≥ 20), arrays at the full control rate.
 """
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
@@ -28,6 +28,8 @@ class SplitSpec:
     test: tuple[str, ...]
     val_fraction: float = 0.1
     description: str = ""
+    test_groups: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    """Named groups of test tasks reported together (Meta-World: ``easy`` and ``hard``, as in the paper's Table 1)."""
 
     def __post_init__(self) -> None:
         overlap = set(self.train) & set(self.test)
@@ -37,6 +39,10 @@ class SplitSpec:
             raise ValueError(f"split {self.scene!r}: val_fraction must be in [0, 1), got {self.val_fraction}")
         if not self.train:
             raise ValueError(f"split {self.scene!r} has no training tasks")
+        for group, tasks in self.test_groups.items():
+            stray = set(tasks) - set(self.test)
+            if stray:
+                raise ValueError(f"split {self.scene!r}: test group {group!r} names non-test tasks {sorted(stray)}")
 
     def tasks(self, split: str) -> tuple[str, ...]:
         """The tasks a split draws from: training tasks for ``train`` and ``val``, held-out ones for ``test``."""
@@ -52,6 +58,7 @@ class SplitSpec:
             test=tuple(d.get("test", ())),
             val_fraction=float(d.get("val_fraction", 0.1)),
             description=d.get("description", ""),
+            test_groups={str(k): tuple(v) for k, v in d.get("test_groups", {}).items()},
         )
 
 

@@ -68,6 +68,10 @@ def resize_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return np.ascontiguousarray(out.transpose(0, 3, 1, 2))
 
 
+SAME_POOL_SCENES = frozenset({"metaworld"})
+"""Scenes whose training pairs take both sides from the stored ``expert`` demonstrations (the paper's Meta-World)."""
+
+
 class PairDataset:
     """(expert, agent) pairs of one split, as OSVI-WM training samples (a map-style dataset).
 
@@ -79,8 +83,9 @@ class PairDataset:
         seed: seed of the expert-frame sampling (see :meth:`set_epoch`).
         scene: scene whose split file is used, unless ``split_spec`` is given.
         split_spec: a :class:`SplitSpec`, a path to a split JSON, or None for ``studio/splits/<scene>.json``.
-        expert_roles, agent_roles: catalog roles of the two sides. Meta-World style "same pool" training
-            uses ``expert_roles=("agent",)``.
+        expert_roles, agent_roles: catalog roles of the two sides. ``agent_roles=None`` takes the scene's own:
+            ``("agent",)`` on the tabletop (Sawyer experts, Panda agents), ``("expert",)`` for Meta-World, where
+            expert and agent come from one pool of Sawyer demonstrations as in the paper (``SAME_POOL_SCENES``).
         expert_embodiments, agent_embodiments: restrict the sides to these embodiments (None: any).
         sources: episode sources used (rollouts are excluded by default).
         progress: show a progress bar while decoding frames into the cache.
@@ -98,7 +103,7 @@ class PairDataset:
         scene: str = "pick_place",
         split_spec: SplitSpec | str | os.PathLike | None = None,
         expert_roles: Sequence[str] = ("expert",),
-        agent_roles: Sequence[str] = ("agent",),
+        agent_roles: Sequence[str] | None = None,
         expert_embodiments: Sequence[str] | None = None,
         agent_embodiments: Sequence[str] | None = None,
         sources: Sequence[str] = DEFAULT_SOURCES,
@@ -114,6 +119,8 @@ class PairDataset:
             self.spec = split_spec
         else:
             self.spec = load_split(split_spec if split_spec is not None else scene)
+        if agent_roles is None:
+            agent_roles = ("expert",) if self.spec.scene in SAME_POOL_SCENES else ("agent",)
         self.split = split
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.n_expert, self.n_agent, self.path_points = n_expert, n_agent, path_points

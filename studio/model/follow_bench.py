@@ -22,6 +22,12 @@ VARIANTS: dict[str, dict] = {
     "divided+map": {"action_attention": "divided"},
     "divided+cells+residual": {"action_attention": "divided", "wm_tokens": "cells", "wm_residual": True},
     "divided+cells (cpu)": {"action_attention": "divided", "wm_tokens": "cells"},
+    "divided+cells 2 blocks": {"action_attention": "divided", "wm_tokens": "cells", "action_blocks": 2},
+    "cross+cells": {"action_attention": "cross", "wm_tokens": "cells"},
+    "cross+cells 2 blocks": {"action_attention": "cross", "wm_tokens": "cells", "action_blocks": 2},
+    "cross+cells 2 blocks wide": {"action_attention": "cross", "wm_tokens": "cells", "action_blocks": 2,
+                                  "state_channels": 32, "action_attn_dim": 32, "action_mlp_dim": 64},
+    "joint+cells 2 blocks": {"wm_tokens": "cells", "action_blocks": 2},
 }
 NO_AUGMENTATION = dict(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, brightness=0.0, contrast=0.0,
                        saturation=0.0, hue=0.0, mixup=False)  # fmt: skip
@@ -33,6 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, from: {', '.join(VARIANTS)}")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--task", choices=("follow", "match"), default="follow",
+                        help="follow: fixed markers, the demonstration names the target; match: markers shuffled per "
+                             "episode, the agent must find the demonstrated colour in its own frame")  # fmt: skip
+    parser.add_argument("--episodes", type=int, default=0,
+                        help="episodes per task and role (default 3 for follow, 12 for match)")  # fmt: skip
 
 
 def measure(args: argparse.Namespace) -> dict:
@@ -49,8 +60,10 @@ def measure(args: argparse.Namespace) -> dict:
         raise SystemExit(f"studio bench follow: unknown variant(s) {unknown}; choose from {list(VARIANTS)}")
     torch.set_num_threads(args.threads)
     every = max(1, args.steps // max(1, args.val_points))
-    result: dict = {"steps": args.steps, "threads": args.threads, "seed": args.seed, "mean_target_final_err_m": None,
-                    "variants": {}}  # fmt: skip
+    match = args.task == "match"
+    episodes = args.episodes or (12 if match else 3)
+    result: dict = {"task": args.task, "episodes_per_task": episodes, "steps": args.steps, "threads": args.threads,
+                    "seed": args.seed, "mean_target_final_err_m": None, "variants": {}}  # fmt: skip
     for name in names:
         run = tiny_run_config(max_steps=args.steps, lr_max=3e-3, val_every=every, val_batches=0, seed=args.seed,
                               **NO_AUGMENTATION)  # fmt: skip
@@ -58,8 +71,9 @@ def measure(args: argparse.Namespace) -> dict:
             setattr(run.model, field, value)
         t0 = time.perf_counter()
         with tempfile.TemporaryDirectory() as out:
-            train(run, SyntheticPairs(n_tasks=4, episodes_per_task=3),
-                  SyntheticPairs(n_tasks=4, episodes_per_task=3, split="val"), out, show_progress=False)  # fmt: skip
+            train(run, SyntheticPairs(n_tasks=4, episodes_per_task=episodes, shuffle_targets=match),
+                  SyntheticPairs(n_tasks=4, episodes_per_task=3, split="val", shuffle_targets=match), out,
+                  show_progress=False)  # fmt: skip
             lines = (Path(out) / "metrics.jsonl").read_text().splitlines()
         vals = [r for r in map(json.loads, lines) if r.get("split") == "val"]
         points = [

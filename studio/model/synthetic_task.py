@@ -8,6 +8,11 @@ follow the "Training sample" contract of studio.data (uint8 frames (T, 3, H, W),
 frame, K at (H, W)) with configurable N, M, P and image size. Nothing is written to disk. Used by the model tests
 and by `studio bench follow` (``follow_bench``), which checks in seconds whether an architecture learns to read
 demonstrations at all.
+
+With ``shuffle_targets=True`` (the *match* variant) every episode places the four coloured markers in its own
+random order over the four slots and task t means "go to the marker of colour t": the demonstration shows which
+colour, the agent's first frame shows where that colour is now. This is the object-matching half of
+pick-and-place (objects are shuffled there); copying the demonstration's end point is right one time in four.
 """
 
 from __future__ import annotations
@@ -31,11 +36,13 @@ class SyntheticPairs:
         path_points: int = 20,
         seed: int = 0,
         split: str = "train",
+        shuffle_targets: bool = False,
     ) -> None:
         self.h, self.w = image_size
         self.n_expert, self.n_agent, self.path_points = n_expert, n_agent, path_points
         self.seed = seed if split == "train" else seed + 1000
         self.n_tasks = n_tasks
+        self.shuffle_targets = shuffle_targets
         self.tasks = [f"synthetic/target{t}" for t in range(n_tasks)]
         f = 0.9 * self.w
         self.K = np.array([[f, 0, self.w / 2], [0, f, self.h / 2], [0, 0, 1]], dtype=np.float32)
@@ -49,6 +56,8 @@ class SyntheticPairs:
         ]
         self.expert_indices = np.array([t * episodes_per_task + e for t, e, _ in self.pairs])
         self._key = (n_tasks, episodes_per_task, image_size, n_expert, n_agent, path_points, self.seed)
+        if shuffle_targets:
+            self._key += ("shuffled",)
 
     def fingerprint(self) -> str:
         return "synthetic-" + hashlib.sha1(repr(self._key).encode()).hexdigest()[:12]
@@ -56,20 +65,27 @@ class SyntheticPairs:
     def __len__(self) -> int:
         return len(self.pairs)
 
+    def _layout(self, task: int, index: int, role: int) -> np.ndarray:
+        """Slot of each colour's marker: the identity, or an episode's own shuffle with ``shuffle_targets``."""
+        n = len(TARGETS_CAM)
+        if not self.shuffle_targets:
+            return np.arange(n)
+        return np.random.default_rng([self.seed, task, index, role, 7]).permutation(n)
+
     def _episode(self, task: int, index: int, role: int) -> np.ndarray:
         rng = np.random.default_rng([self.seed, task, index, role])
         start = np.array([rng.uniform(-0.25, 0.25), rng.uniform(-0.2, -0.05), rng.uniform(0.9, 1.1)])
-        target = TARGETS_CAM[task % len(TARGETS_CAM)]
+        target = TARGETS_CAM[self._layout(task, index, role)[task % len(TARGETS_CAM)]]
         s = np.linspace(0.0, 1.0, 200)[:, None]
         xyz = start + s * (target - start)
         xyz[:, 1] -= 0.05 * np.sin(np.pi * s[:, 0])
         grip = (s[:, 0] > 0.5).astype(float)[:, None]
         return np.concatenate([xyz, grip], axis=1)
 
-    def _render(self, p_cam: np.ndarray, colour: tuple[int, int, int]) -> np.ndarray:
+    def _render(self, p_cam: np.ndarray, colour: tuple[int, int, int], layout: np.ndarray) -> np.ndarray:
         img = np.full((self.h, self.w, 3), 110, dtype=np.uint8)
-        for t, c in zip(TARGETS_CAM, TARGET_COLOURS):
-            self._square(img, t, c, 2)
+        for slot, c in zip(layout, TARGET_COLOURS):
+            self._square(img, TARGETS_CAM[slot], c, 2)
         self._square(img, p_cam, np.array(colour, dtype=np.uint8), 3)
         return img.transpose(2, 0, 1)
 
@@ -82,12 +98,13 @@ class SyntheticPairs:
         task, e, a = self.pairs[i]
         expert = self._episode(task, e, 0)
         agent = self._episode(task, a, 1)
+        ex_layout, ag_layout = self._layout(task, e, 0), self._layout(task, a, 1)
         ex_idx = np.linspace(0, len(expert) - 1, self.n_expert).round().astype(int)
         ag_idx = np.linspace(0, len(agent) - 1, self.n_agent).round().astype(int)
         path_idx = np.linspace(0, len(agent) - 1, self.path_points).round().astype(int)
         return {
-            "expert_frames": np.stack([self._render(expert[k, :3], (40, 40, 230)) for k in ex_idx]),
-            "agent_frames": np.stack([self._render(agent[k, :3], (230, 40, 40)) for k in ag_idx]),
+            "expert_frames": np.stack([self._render(expert[k, :3], (40, 40, 230), ex_layout) for k in ex_idx]),
+            "agent_frames": np.stack([self._render(agent[k, :3], (230, 40, 40), ag_layout) for k in ag_idx]),
             "path": agent[path_idx].astype(np.float32),
             "K": self.K.copy(),
             "T_world_cam": self.T_world_cam.copy(),

@@ -33,6 +33,7 @@ def test_metaworld_splits_follow_paper():
     assert easy == ["metaworld/button-press-v3", "metaworld/pick-place-wall-v3"]
     assert hard == ["metaworld/window-open-v3", "metaworld/door-unlock-v3"]
     assert spec.scene == "metaworld" and spec.test == tuple(easy + hard) and len(spec.train) == 46
+    assert spec.test_groups == {"easy": tuple(easy), "hard": tuple(hard)}
     assert sorted(spec.train + spec.test) == sorted(list_tasks("metaworld"))
     assert set(raw["twins"]) == set(spec.test) and set(raw["twins"].values()) <= set(spec.train)
     ablation = load_split("metaworld_ablation")
@@ -47,6 +48,8 @@ def test_split_from_file_and_errors(tmp_path):
     assert load_split(path).train == ("pick_place/cube->red",)
     with pytest.raises(ValueError, match="both in train and test"):
         SplitSpec("x", train=("a/b",), test=("a/b",))
+    with pytest.raises(ValueError, match="names non-test tasks"):
+        SplitSpec("x", train=("a/b",), test=("a/c",), test_groups={"easy": ("a/b",)})
     with pytest.raises(ValueError, match="no split file"):
         load_split("kitchen")
     with pytest.raises(ValueError, match="split must be"):
