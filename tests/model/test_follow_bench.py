@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
 import pytest
 
 from studio.model import follow_bench
@@ -27,3 +28,26 @@ def test_reports_errors_and_demonstration_effect_per_variant():
 def test_unknown_variant_is_a_clear_error():
     with pytest.raises(SystemExit, match="unknown variant"):
         follow_bench.measure(_args("--variants", "paper,transformer-xl"))
+
+
+def test_match_task_shuffles_markers_and_the_path_ends_at_the_demonstrated_colour():
+    from studio.model.synthetic_task import TARGETS_CAM, SyntheticPairs
+
+    data = SyntheticPairs(n_tasks=4, episodes_per_task=6, shuffle_targets=True)
+    assert data.fingerprint() != SyntheticPairs(n_tasks=4, episodes_per_task=6).fingerprint()
+    moved = 0
+    for i in range(0, len(data), 7):
+        task, e, a = data.pairs[i]
+        ex_layout, ag_layout = data._layout(task, e, 0), data._layout(task, a, 1)
+        assert sorted(ag_layout) == [0, 1, 2, 3]
+        end = data[i]["path"][-1, :3]
+        assert np.allclose(end, TARGETS_CAM[ag_layout[task]], atol=1e-6)  # the agent's marker of the task's colour
+        moved += int(ex_layout[task] != ag_layout[task])
+    assert moved > 0  # copying the demonstration's end point is not the answer
+
+
+def test_match_variant_runs():
+    result = follow_bench.measure(_args("--task", "match", "--episodes", "2", "--steps", "2", "--val-points", "1",
+                                        "--variants", "cross+cells 2 blocks"))  # fmt: skip
+    assert result["task"] == "match" and result["episodes_per_task"] == 2
+    assert result["variants"]["cross+cells 2 blocks"]["val"][0]["step"] == 2
