@@ -12,6 +12,7 @@ TARGETS: dict[str, str] = {
     "sim": "studio.sim.bench",
     "model": "studio.model.bench",
     "follow": "studio.model.follow_bench",
+    "plan": "studio.model.plan_bench",
     "collect": "studio.data.bench",
     "bus": "studio.backend.bench",
     "metaworld": "studio.sim.metaworld_bench",
