@@ -74,6 +74,19 @@ def _median(values: list) -> float | None:
     return round(float(np.median(vals)), 4) if vals else None
 
 
+def _demonstration(store, meta, obj: str, mirror: bool, cache: dict) -> tuple[np.ndarray, np.ndarray]:
+    """A demonstration's frames (mirrored if asked) and the xy where its object lay as the video shows it."""
+    if meta.id not in cache:
+        frames = store.load_frames(meta.id)
+        frames = np.ascontiguousarray(frames[:, :, ::-1]) if mirror else frames
+        objects = store.load_arrays(meta.id)[2]["object_poses"][0]
+        where = np.array(objects[list(meta.object_names).index(obj), :2], dtype=np.float64)
+        if mirror:  # the camera looks along the x = 0 plane: an image mirror is x -> -x
+            where[0] = -where[0]
+        cache[meta.id] = (frames, where)
+    return cache[meta.id]
+
+
 def measure(args: argparse.Namespace) -> dict:
     import torch
 
@@ -97,21 +110,10 @@ def measure(args: argparse.Namespace) -> dict:
             if not agents or not experts:
                 raise SystemExit(f"studio bench plan: {task!r} needs stored agent and expert episodes in "
                                  f"{args.data_dir} (studio collect --robot panda / --robot sawyer)")  # fmt: skip
-            demos = {}
+            demos: dict[str, tuple] = {}
 
-            def demo(meta):
-                if meta.id not in demos:
-                    frames = store.load_frames(meta.id)
-                    frames = np.ascontiguousarray(frames[:, :, ::-1]) if args.mirror else frames
-                    objects = store.load_arrays(meta.id)[2]["object_poses"][0]
-                    where = objects[list(meta.object_names).index(obj), :2].copy()
-                    if args.mirror:  # the camera looks along the x = 0 plane: an image mirror is x -> -x
-                        where[0] = -where[0]
-                    demos[meta.id] = (frames, where)
-                return demos[meta.id]
-
-            def plan(expert_meta, agent):
-                frames, _ = demo(expert_meta)
+            def plan(expert_meta, agent, demos=demos, obj=obj):
+                frames, _ = _demonstration(store, expert_meta, obj, args.mirror, demos)
                 cam = agent.camera
                 return planner.plan(frames, agent.frames[0], cam.K, cam.T_world_cam).waypoints_world
 
@@ -123,7 +125,7 @@ def measure(args: argparse.Namespace) -> dict:
                 target = objects[list(meta.object_names).index(obj)]
                 expert_meta = experts[int(rng.integers(len(experts)))]
                 grasp, release = grasp_and_release(plan(expert_meta, agent))
-                _, demo_object = demo(expert_meta)
+                _, demo_object = _demonstration(store, expert_meta, obj, args.mirror, demos)
                 if grasp is None:
                     rows["right"].append(False)
                     rows["grasp"].append(None)
