@@ -89,20 +89,38 @@ class OraclePlanner:
     """Plans from the simulator's true state (the scripted expert's waypoints): the execution ceiling.
 
     It ignores the images; evaluation reports it as an upper bound for what the controller can do
-    with perfect waypoints, never as a result of the model.
+    with perfect waypoints, never as a result of the model. On the tabletop the waypoints are our experts'
+    for the current state; on Meta-World they are five points along the scripted policy's own episode from the
+    same reset (``studio.sim.metaworld_experts.expert_waypoints``), so a re-plan repeats the first plan.
     """
 
     def __init__(self, env: SimEnv):
-        if env.scene not in ("pick_place", "push"):
-            raise ValueError(f"the oracle planner knows the tabletop scenes only, not {env.scene!r}")
+        if env.scene not in ("pick_place", "push", "metaworld"):
+            raise ValueError(f"the oracle planner knows the tabletop and Meta-World scenes, not {env.scene!r}")
         self.env = env
+        self._scratch = None
+
+    def _waypoints(self) -> np.ndarray:
+        if self.env.scene != "metaworld":
+            return expert_waypoints(self.env)
+        from studio.sim.metaworld_env import MetaWorldEnv
+        from studio.sim.metaworld_experts import expert_waypoints as metaworld_waypoints
+
+        if self._scratch is None:
+            self._scratch = MetaWorldEnv(image_size=(32, 32))
+        return metaworld_waypoints(self.env.task.name, self.env.seed, scratch=self._scratch)
 
     def plan(self, expert_frames, agent_frame, K, T_world_cam):
-        wps = expert_waypoints(self.env)
+        wps = self._waypoints()
         cam = self.env.camera_model()
         return type("OraclePlan", (), {"waypoints_world": wps,
                                        "waypoints_cam": np.column_stack([cam.world_to_cam(wps[:, :3]), wps[:, 3]]),
                                        "latent_states": None, "pooled_states": None})()
+
+    def close(self) -> None:
+        if self._scratch is not None:
+            self._scratch.close()
+            self._scratch = None
 
 
 def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, task: str, seed: int, *,

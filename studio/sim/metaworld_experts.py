@@ -94,3 +94,41 @@ def record_expert(
     finally:
         if own:
             env.close()
+
+
+ORACLE_SETTLE = 10
+"""Ticks after first success at which :func:`expert_waypoints` ends its path: success thresholds are tight, and a
+plan ending exactly where the signal first came on stops short by the waypoint controller's tolerance."""
+
+
+def expert_waypoints(task: str, seed: int, n: int = 5, scratch: MetaWorldEnv | None = None) -> np.ndarray:
+    """(n, 4) waypoints [x, y, z, gripper] of the scripted policy's own episode of (task, seed).
+
+    The policy runs in a scratch environment (``scratch``, or a small one made and closed here) from the same
+    reset until :data:`ORACLE_SETTLE` ticks after its first success; the waypoints are ``n`` hand positions evenly
+    spaced in time after the start, closed where the policy's grab effort is positive. This is the Meta-World
+    oracle of ``studio eval --checkpoint oracle``: the ceiling of five waypoints executed by our controller, not
+    a model. Raises RuntimeError if the policy fails on this seed.
+    """
+    own = scratch is None
+    env = scratch or MetaWorldEnv(image_size=(32, 32))
+    try:
+        env.reset(task, seed)
+        policy = scripted_policy(task)
+        hand, closed, first = [], [], None
+        for _ in range(MAX_TICKS):
+            action = expert_action(policy, env)
+            env.step_action(action)
+            hand.append(env.ee_pos.copy())
+            closed.append(float(action[3] > 0))
+            if first is None and env.success_now():
+                first = env.steps
+            if first is not None and env.steps >= first + ORACLE_SETTLE:
+                break
+        if first is None:
+            raise RuntimeError(f"the scripted policy of {task} failed on seed {seed}")
+        idx = np.round(np.linspace(0, len(hand) - 1, n + 1)[1:]).astype(int)
+        return np.column_stack([np.asarray(hand)[idx], np.asarray(closed)[idx]])
+    finally:
+        if own:
+            env.close()

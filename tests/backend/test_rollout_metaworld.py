@@ -1,10 +1,8 @@
 """Rollouts on Meta-World: run_rollout executes planned waypoints with the waypoint controller, re-plans in-episode.
 
-The oracle planner of the tabletop scenes reads our own experts' waypoints; here a planner made for the
-tests derives the waypoints from Meta-World's scripted policy instead: it runs the policy from the same
-(task, seed) in a scratch environment until ten ticks after its first success (success thresholds are
-tight: a plan ending exactly where the signal first came on stops short by the controller's tolerance)
-and keeps five hand positions evenly spaced in time, gripper closed where the policy's effort is positive.
+The planner is the package's Meta-World oracle (``OraclePlanner`` → ``metaworld_experts.expert_waypoints``):
+five hand positions along Meta-World's scripted policy's own episode from the same (task, seed), evenly spaced
+in time up to ten ticks after its first success, gripper closed where the policy's effort is positive.
 """
 
 import os
@@ -14,19 +12,18 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np
 import pytest
 
-from studio.backend.rollout import run_rollout
+from studio.backend.rollout import OraclePlanner, run_rollout
 from studio.sim.metaworld_env import MetaWorldEnv
-from studio.sim.metaworld_experts import expert_action, scripted_policy
+from studio.sim.metaworld_experts import expert_waypoints
 
 SIZE = (64, 64)
 
 
-class PolicyTracePlanner:
-    """Five waypoints along the scripted policy's hand path of the rollout env's episode."""
+class RecordingOracle(OraclePlanner):
+    """The oracle, noting the tick of every plan; with ``miss_first`` its first plan only hovers."""
 
     def __init__(self, env: MetaWorldEnv, miss_first: bool = False):
-        self.env = env
-        self.scratch = MetaWorldEnv(image_size=SIZE)
+        super().__init__(env)
         self.miss_first = miss_first
         self.seen_steps: list[int] = []
 
@@ -36,25 +33,7 @@ class PolicyTracePlanner:
         if self.miss_first and len(self.seen_steps) == 1:  # a useless first plan: hover where the hand is
             wps = np.tile(np.append(self.env.ee_pos + np.array([0.0, 0.0, 0.05]), 0.0), (5, 1))
             return type("Plan", (), {"waypoints_world": wps})()
-        s = self.scratch
-        s.reset(self.env.task.name, self.env.seed)
-        policy = scripted_policy(self.env.task.name)
-        hand, closed, first = [], [], None
-        for _ in range(500):
-            a = expert_action(policy, s)
-            s.step_action(a)
-            hand.append(s.ee_pos)
-            closed.append(float(a[3] > 0))
-            first = first or (s.steps if s.success_now() else None)
-            if first and s.steps >= first + 10:
-                break
-        assert first, "the scripted policy failed on this seed"
-        idx = np.round(np.linspace(0, len(hand) - 1, 6)[1:]).astype(int)
-        wps = np.column_stack([np.array(hand)[idx], np.array(closed)[idx]])
-        return type("Plan", (), {"waypoints_world": wps})()
-
-    def close(self):
-        self.scratch.close()
+        return super().plan(expert_frames, agent_frame, K, T_world_cam)
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +44,7 @@ def env():
 
 
 def test_rollout_presses_the_button(env):
-    planner = PolicyTracePlanner(env)
+    planner = RecordingOracle(env)
     frames = np.zeros((10, *SIZE, 3), np.uint8)
     try:
         out = run_rollout(env, planner, frames, "metaworld/button-press-v3", 21, replans=0, n_frames=20)
@@ -79,7 +58,7 @@ def test_rollout_presses_the_button(env):
 
 
 def test_replanning_continues_the_same_episode(env):
-    planner = PolicyTracePlanner(env, miss_first=True)
+    planner = RecordingOracle(env, miss_first=True)
     frames = np.zeros((10, *SIZE, 3), np.uint8)
     try:
         out = run_rollout(env, planner, frames, "metaworld/door-unlock-v3", 4, replans=1, n_frames=20)
@@ -91,3 +70,20 @@ def test_replanning_continues_the_same_episode(env):
     # One episode: time never jumps back, and the episode is as long as both plans' execution.
     t = out.recording.arrays["time"]
     assert np.all(np.diff(t) > 0) and np.isclose(t[-1], env.steps * env.control_dt)
+
+
+def test_oracle_waypoints_follow_the_scripted_episode_and_fail_loudly():
+    wps = expert_waypoints("metaworld/pick-place-wall-v3", 3)
+    assert wps.shape == (5, 4) and set(np.unique(wps[:, 3])) <= {0.0, 1.0}
+    assert wps[:, 3].any(), "pick-place-wall closes the gripper on the way"
+    assert np.allclose(wps, expert_waypoints("metaworld/pick-place-wall-v3", 3))  # deterministic by seed
+    with MetaWorldEnv(image_size=(32, 32)) as scratch:
+        with pytest.raises(RuntimeError, match="failed on seed"):
+            # one tick is never enough to succeed: the policy "fails"
+            import studio.sim.metaworld_experts as experts
+
+            old, experts.MAX_TICKS = experts.MAX_TICKS, 1
+            try:
+                expert_waypoints("metaworld/door-unlock-v3", 0, scratch=scratch)
+            finally:
+                experts.MAX_TICKS = old
