@@ -101,6 +101,10 @@ ORACLE_SETTLE = 10
 plan ending exactly where the signal first came on stops short by the waypoint controller's tolerance."""
 
 
+GRASP_WINDOW = 30
+"""Ticks after the policy first closes the fingers in which :func:`expert_waypoints` looks for the grasp's bottom."""
+
+
 def expert_waypoints(task: str, seed: int, n: int = 5, scratch: MetaWorldEnv | None = None) -> np.ndarray:
     """(n, 4) waypoints [x, y, z, gripper] of the scripted policy's own episode of (task, seed).
 
@@ -127,8 +131,19 @@ def expert_waypoints(task: str, seed: int, n: int = 5, scratch: MetaWorldEnv | N
                 break
         if first is None:
             raise RuntimeError(f"the scripted policy of {task} failed on seed {seed}")
+        hand, closed = np.asarray(hand), np.asarray(closed)
         idx = np.round(np.linspace(0, len(hand) - 1, n + 1)[1:]).astype(int)
-        return np.column_stack([np.asarray(hand)[idx], np.asarray(closed)[idx]])
+        closes = np.flatnonzero(np.diff(closed, prepend=0.0) > 0)
+        if len(closes) and n > 1:
+            # The policies close the fingers while still descending; our controller closes on arrival, so the
+            # grasp waypoint is the lowest hand point of the next GRASP_WINDOW ticks, open until there.
+            first = int(closes[0])
+            grasp = first + int(np.argmin(hand[first : first + GRASP_WINDOW, 2]))
+            closed[first:grasp] = 0.0
+            k = int(np.argmin(np.abs(idx[:-1] - grasp)))
+            idx[k] = grasp
+            idx = np.sort(idx)
+        return np.column_stack([hand[idx], closed[idx]])
     finally:
         if own:
             env.close()
