@@ -25,7 +25,7 @@ from studio.ui.images import filmstrip, thumbnail
 
 HINT = """Choose a **task** (held-out ones were never trained on), a **demonstration** of it and a scene
 **seed**. **Plan** shows what the model sees and predicts; **Execute** runs it on the Franka Panda
-live in the scene. Record demonstrations in *Teleop*, upload them in *Upload*, or make a scripted one here."""
+(the Sawyer in Meta-World) live in the scene. Record demonstrations in *Teleop*, upload them in *Upload*, or make a scripted one here."""
 
 SCENES = ("pick_place", "push", "metaworld")
 HELD_OUT = " (held-out)"
