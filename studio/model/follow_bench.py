@@ -38,6 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--val-points", type=int, default=3, help="validations spread over the run")
     parser.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, from: {', '.join(VARIANTS)}")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--lr", type=float, default=3e-3, help="peak learning rate of the one-cycle schedule")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--task", choices=("follow", "match"), default="follow",
                         help="follow: fixed markers, the demonstration names the target; match: markers shuffled per "
@@ -62,10 +63,11 @@ def measure(args: argparse.Namespace) -> dict:
     every = max(1, args.steps // max(1, args.val_points))
     match = args.task == "match"
     episodes = args.episodes or (12 if match else 3)
-    result: dict = {"task": args.task, "episodes_per_task": episodes, "steps": args.steps, "threads": args.threads,
+    result: dict = {"task": args.task, "episodes_per_task": episodes, "steps": args.steps, "lr": args.lr,
+                    "threads": args.threads,
                     "seed": args.seed, "mean_target_final_err_m": None, "variants": {}}  # fmt: skip
     for name in names:
-        run = tiny_run_config(max_steps=args.steps, lr_max=3e-3, val_every=every, val_batches=0, seed=args.seed,
+        run = tiny_run_config(max_steps=args.steps, lr_max=args.lr, val_every=every, val_batches=0, seed=args.seed,
                               **NO_AUGMENTATION)  # fmt: skip
         for field, value in VARIANTS[name].items():
             setattr(run.model, field, value)
