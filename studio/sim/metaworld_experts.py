@@ -105,14 +105,18 @@ GRASP_WINDOW = 30
 """Ticks after the policy first closes the fingers in which :func:`expert_waypoints` looks for the grasp's bottom."""
 
 
-def expert_waypoints(task: str, seed: int, n: int = 5, scratch: MetaWorldEnv | None = None) -> np.ndarray:
+def expert_waypoints(
+    task: str, seed: int, n: int = 5, scratch: MetaWorldEnv | None = None, strict: bool = False
+) -> np.ndarray:
     """(n, 4) waypoints [x, y, z, gripper] of the scripted policy's own episode of (task, seed).
 
     The policy runs in a scratch environment (``scratch``, or a small one made and closed here) from the same
     reset until :data:`ORACLE_SETTLE` ticks after its first success; the waypoints are ``n`` hand positions evenly
     spaced in time after the start, closed where the policy's grab effort is positive. This is the Meta-World
     oracle of ``studio eval --checkpoint oracle``: the ceiling of five waypoints executed by our controller, not
-    a model. Raises RuntimeError if the policy fails on this seed.
+    a model. The scripted policies fail on a few seeds (98.4 % success, ``docs/metaworld.md``); then the path is the
+    policy's whole failed attempt (:data:`MAX_TICKS`), as a ceiling should count it — or, with ``strict``, a
+    RuntimeError.
     """
     own = scratch is None
     env = scratch or MetaWorldEnv(image_size=(32, 32))
@@ -129,7 +133,7 @@ def expert_waypoints(task: str, seed: int, n: int = 5, scratch: MetaWorldEnv | N
                 first = env.steps
             if first is not None and env.steps >= first + ORACLE_SETTLE:
                 break
-        if first is None:
+        if first is None and strict:
             raise RuntimeError(f"the scripted policy of {task} failed on seed {seed}")
         hand, closed = np.asarray(hand), np.asarray(closed)
         idx = np.round(np.linspace(0, len(hand) - 1, n + 1)[1:]).astype(int)

@@ -202,19 +202,25 @@ def _click(locator) -> None:
     locator.click(force=True, timeout=60_000)
 
 
-def _open_tab(page, name: str, shows: str, attempts: int = 3) -> None:
-    """Click a tab until it shows ``shows``: a click that lands while a loaded machine is still building the page
-    can be lost (seen once in a full-suite run), and waiting longer on a tab that never opened does not help."""
+def _click_until(page, locator, shows: str, attempts: int = 3) -> None:
+    """Click until the page shows ``shows``: a click that lands while a loaded machine is still building the page
+    can be lost (seen in full-suite runs, on tabs and on the Inspect tab's Open), and waiting longer on a click
+    that never arrived does not help. Fails if the text never appears."""
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
     for attempt in range(attempts):
-        _click(page.get_by_role("tab", name=name))
+        _click(locator)
         try:
             page.get_by_text(shows).first.wait_for(timeout=30_000)
             return
         except PlaywrightTimeout:
             if attempt == attempts - 1:
                 raise
+
+
+def _open_tab(page, name: str, shows: str, attempts: int = 3) -> None:
+    """Open a tab, re-clicking while its content does not show (``_click_until``)."""
+    _click_until(page, page.get_by_role("tab", name=name), shows, attempts)
 
 
 def _tab(studio):
@@ -432,7 +438,7 @@ def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots
 def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     tab = _tab(studio)
     ins = tab.inspector
-    _click(page.get_by_role("tab", name="Inspect"))
+    _open_tab(page, "Inspect", "Every rollout")
     ins.outcome.value = "failures"
     first = _wait(
         lambda: ins.rollout.options[0] if "✘" in ins.rollout.options[0] else None, 10, "failures listed"
@@ -442,8 +448,7 @@ def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     failed = studio.store.catalog.rollouts(success=False, checkpoint_id="fixture-run/best")
     first = ins.rollout.options[0]
     assert first.startswith(failed[0].id) and failed[0].failure_stage in first
-    _click(page.get_by_role("button", name="Open", exact=True))
-    page.get_by_text("Stages:").first.wait_for(timeout=60_000)
+    _click_until(page, page.get_by_role("button", name="Open", exact=True), "Stages:")
     assert tab.mode == "replay"
     steps = ins.replay.num_steps
     ins.timeline.slider.value = steps // 2
@@ -510,7 +515,7 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     _click(page.get_by_role("combobox", name="Scene"))
     _click(page.get_by_role("option", name="metaworld", exact=True))
     _wait(lambda: tp.info is not None and tp.info.scene == "metaworld", 120, "the Meta-World session to open")
-    page.get_by_text("ready.").first.wait_for(timeout=60_000)
+    _wait(lambda: "ready" in tp.status.content and tp.info.task in tp.status.content, 60, "the session's status")
     assert tp.robot.options == ("sawyer",) and tp.info.robot == "sawyer"
     task = tp.info.task
     assert task.startswith("metaworld/")
