@@ -524,8 +524,7 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     assert _colours(shots / "teleop-metaworld.png") > 300, "the Meta-World scene looks blank"
     before = {m.id for m in studio.store.episodes()}
     _click(page.get_by_role("button", name="Record"))
-    _wait(lambda: tp._recording, 30, "recording to start")
-    page.get_by_text("● REC").first.wait_for(timeout=60_000)
+    _wait(lambda: tp._recording and "REC" in tp.rec_status.content, 60, "recording to start")
     start = np.asarray(_wait(tp.client.latest_pose, 5, "a pose").ee_pos)
     goal = start + np.array([0.05, 0.05, -0.05])
     for i in range(1, 61):  # the gizmo's drag callback, as the browser reaches it
