@@ -13,7 +13,12 @@ Reported:
 * ``server_pushes_hz``: pose batches the tab's pump handed to viser per second;
 * ``drag_to_motion_ms_p50`` / ``_p99``: from the drag reaching the server to the first pose frame back from
   the sim worker that applied it (IK and physics on the worker, the bus both ways);
-* ``drag_to_push_ms_p50`` / ``_p99``: to the moment that frame's poses were queued for the browser.
+* ``drag_to_push_ms_p50`` / ``_p99``: to the moment that frame's poses were queued for the browser;
+* ``browser_frames_hz``: frames the page drew per second (viser draws on demand: after each change, for a
+  short settle window, and once a second);
+* ``browser_cpu_pct``: CPU time of all of Chromium's processes during the drag, in % of one core (100 = one core
+  busy). Without a GPU the page's WebGL runs on the CPU (SwiftShader) and every pose frame is a redraw, so this is
+  the cost of showing the scene (``--scene``, ``--max-faces``), next to ``scene_faces``, the triangles shown.
 """
 
 from __future__ import annotations
@@ -29,15 +34,32 @@ import numpy as np
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
-    "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-    "--disable-sync", "--no-first-run",
+    "--no-sandbox", "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--no-first-run",
 ]  # fmt: skip
+#: WebGL without a GPU, by backend. Chromium's default is SwiftShader (``--disable-gpu``); Mesa's llvmpipe
+#: through ANGLE's EGL backend (the libEGL the studio installs for MuJoCo) draws the studio's scene at about a
+#: third of SwiftShader's CPU per frame on these machines (docs/ui.md, `studio bench ui --webgl ...`).
+WEBGL_ARGS = {
+    "llvmpipe": ["--use-gl=angle", "--use-angle=gl-egl", "--ignore-gpu-blocklist"],
+    "swiftshader": ["--disable-gpu"],
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=8.0, help="length of the measured drag")
     parser.add_argument("--drag-hz", type=float, default=60.0, help="gizmo updates per second")
     parser.add_argument("--robot", default="sawyer", choices=("sawyer", "panda"))
+    parser.add_argument("--scene", default="pick_place", help="pick_place, push or metaworld (the Sawyer)")
+    parser.add_argument("--max-faces", type=int, default=None,
+                        help="triangle budget per mesh in the browser (default: the studio's, scene_view.MAX_FACES; "
+                             "0 = the scene's own meshes)")  # fmt: skip
+    parser.add_argument("--dpr", type=float, default=None,
+                        help="fixed canvas pixel ratio (viser's fixedDpr URL parameter; default: viser's adaptive one)")
+    parser.add_argument("--pose-hz", type=float, default=None,
+                        help="cap on pose frames per second to a tab (default: the studio's, app.MAX_POSE_HZ)")
+    parser.add_argument("--webgl", choices=tuple(WEBGL_ARGS), default="llvmpipe",
+                        help="software WebGL backend of the headless browser")  # fmt: skip
     parser.add_argument("--chromium", default=CHROMIUM, help="Chromium executable for Playwright")
 
 
@@ -78,6 +100,24 @@ class _FrameCounter:
                 self.messages += n
 
 
+WEBGL_RENDERER_JS = """(() => { const gl = document.createElement('canvas').getContext('webgl2');
+  if (!gl) return null; const info = gl.getExtension('WEBGL_debug_renderer_info');
+  return info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER); })()"""
+
+
+COUNT_FRAMES_JS = """(() => { window.__studioFrames = 0; const raf = window.requestAnimationFrame.bind(window);
+  window.requestAnimationFrame = (cb) => raf((t) => { window.__studioFrames++; cb(t); }); })();"""
+
+
+def _until(ready, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while not (value := ready()):
+        if time.monotonic() > deadline:
+            raise SystemExit(f"studio bench ui: timed out waiting for {what}")
+        time.sleep(0.1)
+    return value
+
+
 def _percentiles(values: list[float]) -> tuple[float | None, float | None]:
     if not values:
         return None, None
@@ -85,15 +125,54 @@ def _percentiles(values: list[float]) -> tuple[float | None, float | None]:
     return float(np.percentile(arr, 50)), float(np.percentile(arr, 99))
 
 
+def _descendants_cpu_s(root: int, names: tuple[str, ...] = ("chromium", "chrome")) -> float:
+    """User + system CPU seconds of the processes below ``root`` whose command name starts with one of ``names``."""
+    parents: dict[int, int] = {}
+    comms: dict[int, str] = {}
+    times: dict[int, float] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        comm = stat[stat.index("(") + 1 : stat.rindex(")")]
+        fields = stat[stat.rindex(")") + 2 :].split()
+        pid = int(entry.name)
+        parents[pid], comms[pid] = int(fields[1]), comm
+        times[pid] = (int(fields[11]) + int(fields[12])) / tick
+    total = 0.0
+    for pid, comm in comms.items():
+        if not comm.startswith(names):
+            continue
+        p = pid
+        while p > 1 and p != root:
+            p = parents.get(p, 0)
+        if p == root:
+            total += times[pid]
+    return total
+
+
 def measure(args: argparse.Namespace) -> dict:
     os.environ.setdefault("MUJOCO_GL", "egl")
     from playwright.sync_api import sync_playwright
 
     from studio.backend import bus
+    from studio.ui import app as app_module
+    from studio.ui import scene_view
     from studio.ui.app import StudioApp
+    from studio.ui.panels.teleop import scene_tasks
 
     if not Path(args.chromium).exists():
         raise SystemExit(f"studio bench ui: {args.chromium} is missing (apt-get install chromium)")
+    if args.scene == "metaworld" and args.robot != "sawyer":
+        raise SystemExit("studio bench ui: Meta-World scenes have the Sawyer only (--robot sawyer)")
+    if args.pose_hz is not None:
+        app_module.MAX_POSE_HZ = args.pose_hz
+    if args.max_faces is not None:
+        scene_view.MAX_FACES = args.max_faces or None
     with tempfile.TemporaryDirectory(prefix="studio-bench-ui-") as tmp:
         app = StudioApp(
             port=bus.free_loopback_port(),
@@ -105,16 +184,26 @@ def measure(args: argparse.Namespace) -> dict:
                 raise SystemExit("studio bench ui: the embedded workers did not start")
             counter = _FrameCounter()
             with sync_playwright() as p:
-                browser = p.chromium.launch(executable_path=args.chromium, args=CHROMIUM_ARGS)
+                browser = p.chromium.launch(executable_path=args.chromium, args=CHROMIUM_ARGS + WEBGL_ARGS[args.webgl])
                 page = browser.new_page(viewport={"width": 1100, "height": 720})
                 page.on("websocket", lambda ws: ws.on("framereceived", counter))
-                page.goto(app.url)
+                page.add_init_script(COUNT_FRAMES_JS)
+                page.goto(app.url + ("" if args.dpr is None else f"?fixedDpr={args.dpr:g}"))
                 page.get_by_text("ready. Drag the gizmo").first.wait_for(timeout=120_000)
+                renderer = page.evaluate(WEBGL_RENDERER_JS)
                 (tab,) = app.tabs.values()
-                if args.robot != tab.teleop.robot.value:
-                    tab.teleop.robot.value = args.robot
-                    tab.teleop.open()
                 teleop = tab.teleop
+                if (args.scene, args.robot) != (teleop.scene.value, teleop.robot.value):
+                    if args.scene not in teleop.scene.options:
+                        raise SystemExit(f"studio bench ui: unknown scene {args.scene!r}; "
+                                         f"choose from {teleop.scene.options}")  # fmt: skip
+                    teleop.scene.value = args.scene
+                    teleop.task.options = tuple(scene_tasks(args.scene))
+                    teleop.task.value = teleop.task.options[0]
+                    teleop.robot.value = args.robot
+                    teleop.open()
+                    _until(lambda: teleop.info is not None and teleop.info.scene == args.scene, 180, "the session")
+                faces = tab.view.faces_shown
                 center = np.asarray(teleop.client.latest_pose().ee_pos, dtype=np.float64)
                 time.sleep(1.0)
                 app.stats.reset()
@@ -133,10 +222,14 @@ def measure(args: argparse.Namespace) -> dict:
                 dragger = threading.Thread(target=drag, daemon=True)
                 counter.counting = True
                 t0 = time.perf_counter()
+                cpu0 = _descendants_cpu_s(os.getpid())
+                frames0 = page.evaluate("window.__studioFrames")
                 dragger.start()
                 while dragger.is_alive():
                     page.wait_for_timeout(50)  # Playwright delivers websocket events while it runs
                 elapsed = time.perf_counter() - t0
+                cpu = _descendants_cpu_s(os.getpid()) - cpu0
+                frames = page.evaluate("window.__studioFrames") - frames0
                 page.wait_for_timeout(300)  # frames in flight
                 counter.counting = False
                 k = sent[0]
@@ -146,7 +239,15 @@ def measure(args: argparse.Namespace) -> dict:
             push50, push99 = _percentiles(app.stats.push_ms)
             return {
                 "seconds": round(elapsed, 2),
+                "scene": args.scene,
                 "robot": args.robot,
+                "max_faces_per_mesh": scene_view.MAX_FACES,
+                "dpr": args.dpr,
+                "max_pose_hz": app_module.MAX_POSE_HZ,
+                "scene_faces": faces,
+                "webgl": renderer,
+                "browser_frames_hz": round(frames / elapsed, 1),
+                "browser_cpu_pct": round(100 * cpu / elapsed, 1),
                 "drag_hz": args.drag_hz,
                 "drags_sent": k,
                 "browser_pose_frames_hz": round(counter.frames / elapsed, 1),

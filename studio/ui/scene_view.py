@@ -2,12 +2,19 @@
 
 The bodies come from a :class:`~studio.backend.messages.SceneGeometry` (sent by the sim worker, or built
 from the scene files for replays): one viser frame per body that carries geoms, the geoms as meshes under
-it in their body-local poses. A pose update moves the body frames only, and only those that moved since
-the last update, all inside one ``client.atomic()`` block so the browser applies a whole tick at once.
+it in their body-local poses. A pose update moves the body frames only, and only those that moved visibly
+(:data:`POSITION_EPS`, :data:`QUATERNION_EPS`) since the pose last *sent* for them — so slow motion still shows
+and contact chatter does not (a cylinder resting on the table rocks by ~0.05° at every tick, which made the
+browser redraw at 60 Hz forever) — all inside one ``client.atomic()`` block so the browser applies a whole tick
+at once.
 
 The external camera is drawn as a frustum (OpenCV convention, like :class:`studio.sim.camera.CameraModel`)
 showing its latest image. Overlays: the 5 waypoints of a plan (spheres coloured by gripper state, joined
 by a spline, the current one enlarged) and end-effector paths (splines, one colour per gripper state).
+
+Meshes are shown with at most :data:`MAX_FACES` triangles each (quadric decimation, computed once per mesh):
+the robot models' visual meshes have 7,000–21,000 triangles per link (130,000 for the Panda), and without a GPU
+the browser redraws all of them on the CPU for every pose frame (`studio bench ui` measures what that costs).
 """
 
 from __future__ import annotations
@@ -22,21 +29,33 @@ import viser.transforms as vtf
 
 from studio.backend import messages as msg
 
-#: Poses that moved less than this (metres / quaternion components) are not re-sent.
-POSE_EPS = 1e-4
+#: A body is re-sent once it is this far (metres) from the position last sent for it …
+POSITION_EPS = 5e-4
+#: … or any quaternion component is this far from the last sent one (about 0.2° of rotation).
+QUATERNION_EPS = 2e-3
 OPEN_RGB = (40, 170, 90)
 CLOSED_RGB = (220, 70, 40)
 PATH_RGB = {"open": (60, 130, 230), "closed": (235, 140, 30)}
+#: Triangle budget per mesh in the browser (None: the scene's own meshes).
+MAX_FACES: int | None = 2000
+_decimated: dict[tuple, trimesh.Trimesh] = {}
+_decimated_lock = threading.Lock()
 
 
-def geom_mesh(geom: msg.GeomSpec, meshes: Sequence[msg.MeshSpec]) -> trimesh.Trimesh | None:
-    """The geom's surface in its own frame (None for types a viewer does not draw, e.g. height fields)."""
+def geom_mesh(
+    geom: msg.GeomSpec, meshes: Sequence[msg.MeshSpec], max_faces: int | None = None
+) -> trimesh.Trimesh | None:
+    """The geom's surface in its own frame (None for types a viewer does not draw, e.g. height fields).
+
+    A mesh with more than ``max_faces`` triangles is decimated to about that many (cached per mesh content)."""
     size = np.asarray(geom.size, dtype=np.float64)
     if geom.type == "mesh" and geom.mesh >= 0:
         spec = meshes[geom.mesh]
         verts = np.frombuffer(spec.vertices, dtype="<f4").reshape(-1, 3)
         faces = np.frombuffer(spec.faces, dtype="<i4").reshape(-1, 3)
-        return trimesh.Trimesh(verts.copy(), faces.copy(), process=False)
+        if max_faces is None or len(faces) <= max_faces:
+            return trimesh.Trimesh(verts.copy(), faces.copy(), process=False)
+        return decimated(spec, max_faces)
     if geom.type == "box":
         return trimesh.creation.box(extents=2 * size)
     if geom.type == "sphere":
@@ -52,6 +71,23 @@ def geom_mesh(geom: msg.GeomSpec, meshes: Sequence[msg.MeshSpec]) -> trimesh.Tri
     if geom.type == "plane":
         return trimesh.creation.box(extents=[2 * (size[0] or 2.0), 2 * (size[1] or 2.0), 0.002])
     return None
+
+
+def decimated(spec: msg.MeshSpec, max_faces: int) -> trimesh.Trimesh:
+    """``spec``'s mesh with about ``max_faces`` triangles (quadric decimation; computed once per content)."""
+    import hashlib
+
+    key = (hashlib.blake2b(spec.vertices + spec.faces, digest_size=16).digest(), max_faces)
+    with _decimated_lock:
+        if key in _decimated:
+            return _decimated[key].copy()
+    verts = np.frombuffer(spec.vertices, dtype="<f4").reshape(-1, 3).astype(np.float64)
+    faces = np.frombuffer(spec.faces, dtype="<i4").reshape(-1, 3)
+    mesh = trimesh.Trimesh(verts, faces, process=True)  # merge duplicate vertices so edges can collapse
+    mesh = mesh.simplify_quadric_decimation(face_count=max_faces)
+    with _decimated_lock:
+        _decimated[key] = mesh
+    return mesh.copy()
 
 
 def camera_pose(camera: dict) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -74,31 +110,34 @@ class SceneView:
         self.body_names: tuple[str, ...] = ()
         self._bodies: dict[int, viser.FrameHandle] = {}
         self._nodes: list = []
-        self._last: np.ndarray | None = None
+        self._sent: np.ndarray | None = None
         self._lock = threading.RLock()
         self._frustum: viser.CameraFrustumHandle | None = None
         self._camera_key: tuple | None = None
         self._overlays: dict[str, list] = {}
         self.updates_sent = 0
+        self.faces_shown = 0
 
     # ------------------------------------------------------------------ bodies
     def load(self, geometry: msg.SceneGeometry, key: object) -> None:
         """Show ``geometry`` (replacing what was shown unless ``key`` says it is the same scene)."""
         with self._lock:
             if key == self.key and self._bodies:
-                self._last = None  # the next pose update re-sends every body
+                self._sent = None  # the next pose update re-sends every body
                 return
             self._clear_bodies()
             self.key = key
+            budget = MAX_FACES
             self.body_names = geometry.body_names
             with self.client.atomic():
                 for i, g in enumerate(geometry.geoms):
                     rgba = np.asarray(g.rgba)
                     if rgba[3] < 0.05:
                         continue
-                    mesh = geom_mesh(g, geometry.meshes)
+                    mesh = geom_mesh(g, geometry.meshes, budget)
                     if mesh is None:
                         continue
+                    self.faces_shown += len(mesh.faces)
                     body = self._bodies.get(g.body)
                     if body is None:
                         body = self.scene.add_frame(f"{self.root}/b{g.body}", show_axes=False)
@@ -116,15 +155,16 @@ class SceneView:
                         wxyz=g.quat,
                     )
                     self._nodes.append(node)
-            self._last = None
+            self._sent = None
 
     def _clear_bodies(self) -> None:
         for handle in [*self._nodes, *self._bodies.values()]:
             handle.remove()
         self._nodes.clear()
         self._bodies.clear()
+        self.faces_shown = 0
         self.key = None
-        self._last = None
+        self._sent = None
 
     def apply(self, poses: np.ndarray) -> int:
         """Move the bodies to ``poses`` ((B, 7) xyz + wxyz); returns how many bodies were sent."""
@@ -132,11 +172,13 @@ class SceneView:
         with self._lock:
             if not self._bodies:
                 return 0
-            if self._last is None or self._last.shape != poses.shape:
+            if self._sent is None or self._sent.shape != poses.shape:
                 moved = list(self._bodies)
+                self._sent = poses.copy()
             else:
-                delta = np.abs(poses - self._last).max(axis=1)
-                moved = [b for b in self._bodies if b < len(poses) and delta[b] > POSE_EPS]
+                delta = np.abs(poses - self._sent)
+                visible = (delta[:, :3].max(axis=1) > POSITION_EPS) | (delta[:, 3:].max(axis=1) > QUATERNION_EPS)
+                moved = [b for b in self._bodies if b < len(poses) and visible[b]]
             if moved:
                 with self.client.atomic():
                     for b in moved:
@@ -144,8 +186,8 @@ class SceneView:
                             h = self._bodies[b]
                             h.position = poses[b, :3].astype(np.float64)
                             h.wxyz = poses[b, 3:].astype(np.float64)
+                            self._sent[b] = poses[b]
                 self.updates_sent += 1
-            self._last = poses.copy()
             return len(moved)
 
     # ------------------------------------------------------------------ camera

@@ -24,12 +24,8 @@ import numpy as np
 import pytest
 
 from studio.backend import bus
+from studio.ui.bench import CHROMIUM, CHROMIUM_ARGS, WEBGL_ARGS
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-    "--disable-sync", "--no-first-run",
-]  # fmt: skip
 THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window);
   window.requestAnimationFrame = (cb) => setTimeout(() => raf(cb), 200); })();"""
 HELD_OUT = "pick_place/bar->blue"
@@ -48,7 +44,7 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.timeout(420)]
 def _launch(p):
     if not Path(CHROMIUM).exists():
         pytest.fail(f"{CHROMIUM} is missing: ./run test installs Debian's chromium")
-    return p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+    return p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS + WEBGL_ARGS["llvmpipe"])
 
 
 def _colours(path: Path, box=(0, 0, 700, 700)) -> int:
@@ -504,3 +500,53 @@ def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
     row = [r for r in studio.store.catalog.rollouts(task=HELD_OUT) if r.id == result["rollout_id"]]
     assert row and row[0].checkpoint_id == shipped[0].id
 
+
+def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shots):
+    """Meta-World in the browser: choose the scene in the Teleop tab's dropdown (the robot choice narrows to the
+    Sawyer), drag the arm, record and save; the Imitate tab then offers the recording as a demonstration of its
+    task, and Plan runs with it on the Meta-World scene."""
+    tab = _tab(studio)
+    tp, im = tab.teleop, tab.imitate
+    _open_tab(page, "Teleop", "Drag the gizmo")
+    _click(page.get_by_role("combobox", name="Scene"))
+    _click(page.get_by_role("option", name="metaworld", exact=True))
+    _wait(lambda: tp.info is not None and tp.info.scene == "metaworld", 120, "the Meta-World session to open")
+    _wait(lambda: "ready" in tp.status.content and tp.info.task in tp.status.content, 60, "the session's status")
+    assert tp.robot.options == ("sawyer",) and tp.info.robot == "sawyer"
+    task = tp.info.task
+    assert task.startswith("metaworld/")
+    time.sleep(1.0)
+    _shot(page, shots / "teleop-metaworld.png")
+    assert _colours(shots / "teleop-metaworld.png") > 300, "the Meta-World scene looks blank"
+    before = {m.id for m in studio.store.episodes()}
+    _click(page.get_by_role("button", name="Record"))
+    _wait(lambda: tp._recording and "REC" in tp.rec_status.content, 60, "recording to start")
+    start = np.asarray(_wait(tp.client.latest_pose, 5, "a pose").ee_pos)
+    goal = start + np.array([0.05, 0.05, -0.05])
+    for i in range(1, 61):  # the gizmo's drag callback, as the browser reaches it
+        tp.move_to(start + (goal - start) * i / 60)
+        time.sleep(1 / 60)
+    _wait(lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.02, 20,
+          "the Sawyer to follow the drag")  # fmt: skip
+    _click(page.get_by_role("button", name="Stop & save"))
+    _wait(lambda: tp.status.content.startswith("Saved"), 120, "the episode to be stored")
+    (new,) = [m for m in studio.store.episodes() if m.id not in before]
+    assert (new.scene, new.task, new.source, new.role, new.embodiment) == ("metaworld", task, "teleop", "expert",
+                                                                           "sawyer")  # fmt: skip
+    _, _, arrays = studio.store.load_arrays(new.id)
+    assert np.linalg.norm(arrays["ee_pos_world"][-1] - arrays["ee_pos_world"][0]) > 0.05
+
+    shipped = studio.runs.default_policies()
+    studio.runs.set_active(shipped[0].id)
+    _open_tab(page, "Imitate", "Choose a")
+    im.task.value = next(label for label, name in im.labels.items() if name == task)
+    _wait(lambda: any(o.startswith(new.id) for o in im.demo.options), 20, "the recording among the demonstrations")
+    im.demo.value = next(o for o in im.demo.options if o.startswith(new.id))
+    before_job = im.plan_job
+    _click(page.get_by_role("button", name="Plan", exact=True))
+    job = _wait(lambda: im.plan_job is not before_job and im.plan_job, 30, "a new plan job")
+    assert job.spec["expert_episode_id"] == new.id and job.spec["robot"] == "sawyer"
+    _wait(lambda: job.result is not None, 120, "the plan on the Meta-World scene")
+    page.get_by_text("Planned in").first.wait_for(timeout=60_000)
+    assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
+    _shot(page, shots / "imitate-plan-metaworld.png")

@@ -35,3 +35,94 @@ def test_camera_pose_matches_the_camera_model():
 
     np.testing.assert_allclose(vtf.SO3(wxyz).as_matrix(), T[:3, :3], atol=1e-9)
     assert fov == np.float64(2 * np.arctan(120 / 200)) and aspect == 320 / 240
+
+
+class _Handle:
+    def __init__(self, name: str):
+        self.name, self.position, self.wxyz, self.removed = name, None, None, False
+
+    def remove(self) -> None:
+        self.removed = True
+
+
+class _FakeScene:
+    def __init__(self):
+        self.nodes: list[_Handle] = []
+
+    def add_frame(self, name, **_):
+        self.nodes.append(_Handle(name))
+        return self.nodes[-1]
+
+    def add_mesh_simple(self, name, vertices, faces, **_):
+        self.nodes.append(_Handle(name))
+        self.nodes[-1].faces = len(faces)
+        return self.nodes[-1]
+
+
+class _FakeClient:
+    def __init__(self):
+        self.scene = _FakeScene()
+
+    def atomic(self):
+        import contextlib
+
+        return contextlib.nullcontext()
+
+
+def _two_boxes() -> msg.SceneGeometry:
+    box = dict(type="box", group=0, size=(0.02, 0.02, 0.02), pos=(0, 0, 0), quat=(1, 0, 0, 0), rgba=(1, 0, 0, 1),
+               mesh=-1)  # fmt: skip
+    return msg.SceneGeometry(body_names=("a", "b"), geoms=(msg.GeomSpec(body=0, **box), msg.GeomSpec(body=1, **box)),
+                             meshes=())  # fmt: skip
+
+
+def test_pose_updates_send_visible_motion_only_and_never_lose_slow_drift():
+    from studio.ui.scene_view import POSITION_EPS, QUATERNION_EPS, SceneView
+
+    view = SceneView(_FakeClient())
+    view.load(_two_boxes(), "k")
+    poses = np.array([[0, 0, 0, 1, 0, 0, 0], [0.1, 0, 0, 1, 0, 0, 0]], dtype=np.float64)
+    assert view.apply(poses) == 2  # the first update sends every body
+    rng = np.random.default_rng(0)
+    for _ in range(50):  # contact chatter: both bodies rock far below what a pixel shows
+        jitter = poses.copy()
+        jitter[:, 3:] += rng.uniform(-0.4, 0.4, (2, 4)) * QUATERNION_EPS
+        jitter[:, :3] += rng.uniform(-0.4, 0.4, (2, 3)) * POSITION_EPS
+        assert view.apply(jitter) == 0
+    assert view.updates_sent == 1
+    # body b drifts by 0.3 of the threshold per tick: each tick alone is invisible, the sum is not
+    sent_at = []
+    for k in range(1, 14):
+        step = poses.copy()
+        step[1, 0] += k * 0.3 * POSITION_EPS
+        if view.apply(step):
+            sent_at.append(k)
+    assert sent_at == [4, 8, 12], sent_at  # re-sent as soon as it is > POSITION_EPS from what the browser shows
+    assert abs(view._bodies[1].position[0] - (0.1 + 12 * 0.3 * POSITION_EPS)) < 1e-6
+    turned = step.copy()  # b stays where it is
+    turned[0, 3:] = [np.cos(0.01), 0, 0, np.sin(0.01)]  # 1.1° about z
+    assert view.apply(turned) == 1 and np.allclose(view._bodies[0].wxyz, turned[0, 3:])
+
+
+def test_heavy_meshes_are_decimated_to_the_budget_keeping_their_shape():
+    import trimesh
+
+    from studio.ui import scene_view
+
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.05)  # 20,480 faces
+    spec = msg.MeshSpec(name="ball", vertices=sphere.vertices.astype("<f4").tobytes(),
+                        faces=sphere.faces.astype("<i4").tobytes())  # fmt: skip
+    geom = msg.GeomSpec(body=0, type="mesh", group=0, size=(0, 0, 0), pos=(0, 0, 0), quat=(1, 0, 0, 0),
+                        rgba=(1, 1, 1, 1), mesh=0)  # fmt: skip
+    full = scene_view.geom_mesh(geom, (spec,))
+    light = scene_view.geom_mesh(geom, (spec,), max_faces=1000)
+    assert len(full.faces) == 20480 and 500 <= len(light.faces) <= 1000
+    np.testing.assert_allclose(light.bounds, full.bounds, atol=2e-3)
+    assert abs(light.volume - full.volume) / full.volume < 0.02
+    assert scene_view.geom_mesh(geom, (spec,), max_faces=1000) is not light  # a copy of the cached mesh
+    assert len(scene_view.geom_mesh(geom, (spec,), max_faces=30000).faces) == 20480  # under budget: untouched
+
+    view = scene_view.SceneView(_FakeClient())
+    geometry = msg.SceneGeometry(body_names=("ball",), geoms=(geom,), meshes=(spec,))
+    view.load(geometry, "k")
+    assert view.faces_shown <= scene_view.MAX_FACES

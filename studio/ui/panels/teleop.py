@@ -26,6 +26,11 @@ HINTS = """**Drag the gizmo** at the gripper to move the arm (IK runs on the sim
 
 SCENES = ("pick_place", "push", "metaworld")
 PREVIEW_HZ = 5.0
+#: The camera frustum in the 3D view shows the live image this often; the panel's preview (PREVIEW_HZ) is the
+#: live view. Each new frustum image is a new WebGL texture and opens a settle window of redraws: without a GPU
+#: (Chromium on llvmpipe, a still scene) 5 Hz kept the browser at 174 % of a core, 1 Hz at 128 %, 0.2 Hz at 44 %
+#: (13–50 % with no image updates); docs/ui.md.
+FRUSTUM_IMAGE_HZ = 0.2
 PREVIEW_SIZE = (120, 160)
 
 
@@ -241,6 +246,7 @@ class TeleopPanel:
 
     def _preview_loop(self) -> None:
         version = 0
+        next_frustum = 0.0
         while not self._closed:
             client = self.client
             if client is None:
@@ -257,8 +263,9 @@ class TeleopPanel:
                 :: max(1, image.shape[0] // PREVIEW_SIZE[0]), :: max(1, image.shape[1] // PREVIEW_SIZE[1])
             ]
             self.preview.image = small
-            if self.tab.mode == "teleop":
+            if self.tab.mode == "teleop" and time.monotonic() >= next_frustum:
                 self.tab.view.set_camera_image(image)
+                next_frustum = time.monotonic() + 1.0 / FRUSTUM_IMAGE_HZ
             time.sleep(1.0 / PREVIEW_HZ / 2)
 
     # ------------------------------------------------------------------ recording
