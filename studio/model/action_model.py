@@ -77,8 +77,12 @@ class ActionModel(nn.Module):
     # ---------------------------------------------------------------- API
     def context(self, expert_states: torch.Tensor) -> KVCache:
         """Run the expert prefix (B, N, *state_shape) and return its cache."""
-        _, cache = self.transformer(self._tokens(expert_states, 0), context_frames=expert_states.shape[1])
-        return cache
+        return self.context_and_outputs(expert_states)[0]
+
+    def context_and_outputs(self, expert_states: torch.Tensor) -> tuple[KVCache, torch.Tensor]:
+        """The expert prefix's cache and π's outputs at the expert frames (B, N, *state_shape)."""
+        out, cache = self.transformer(self._tokens(expert_states, 0), context_frames=expert_states.shape[1])
+        return cache, self._states(out)
 
     def step(self, agent_state: torch.Tensor, cache: KVCache) -> tuple[torch.Tensor, KVCache]:
         """The latent action for the next agent state (B, *state_shape), given the cache of all earlier frames."""

@@ -86,6 +86,9 @@ class ModelConfig:
         depth_offset, depth_scale: predicted depth z = depth_offset + depth_scale · raw (metres); the trainer
             sets ``depth_offset`` from the training data's median path depth before the first step.
         world_model, pool_before_wm, single_step: ablation switches (module docstring).
+        demo_task_classes: size of the demonstration-task classifier on π's outputs at the expert frames (0: none,
+            as in the paper). The trainer sets it to the number of training tasks when
+            ``TrainConfig.demo_task_weight`` > 0; ``OSVIWM`` docstring.
     """
 
     image_size: tuple[int, int] = (240, 320)
@@ -117,6 +120,7 @@ class ModelConfig:
     world_model: bool = True
     pool_before_wm: bool = False
     single_step: bool = False
+    demo_task_classes: int = 0
 
     def __post_init__(self) -> None:
         self.image_size = tuple(int(v) for v in self.image_size)  # type: ignore[assignment]
@@ -171,6 +175,9 @@ class TrainConfig:
             keypoints start out static, and pulling the predicted keypoints onto them erases what π read from the
             demonstration (docs/results.md, session 4). Once π follows the demonstration, 𝓛_wm does no harm.
         wm_loss, stop_gradient: ablation switches.
+        demo_task_weight: weight of an auxiliary cross-entropy that makes π name the demonstration's task from
+            its outputs at the expert frames (0 = off, the paper's loss). Not in the paper: a probe of whether
+            telling π *what* was demonstrated lets it learn *where* that is in the agent's frame (session 7).
         sdtw_gamma, sdtw_normalize, dense_points, gripper_weight: the waypoint loss (see ``losses``).
         crop, translate, scale, hflip, vflip, brightness, contrast, saturation, hue: augmentation ranges
             (fractions of the image size for crop/translate; scale is a zoom range; flips are probabilities).
@@ -204,6 +211,7 @@ class TrainConfig:
     alpha_warmup: float = 0.0
     wm_loss: bool = True
     stop_gradient: bool = True
+    demo_task_weight: float = 0.0
     sdtw_gamma: float = 1e-3
     sdtw_normalize: bool = False
     dense_points: int = 60
@@ -243,6 +251,8 @@ class TrainConfig:
             raise ValueError(f"precision must be 'fp32' or 'bf16', got {self.precision!r}")
         if not 0.0 < self.mixup_min <= 1.0:
             raise ValueError(f"mixup_min must be in (0, 1], got {self.mixup_min}")
+        if self.demo_task_weight < 0:
+            raise ValueError(f"demo_task_weight must be >= 0, got {self.demo_task_weight}")
         if self.sdtw_gamma <= 0:
             raise ValueError(f"sdtw_gamma must be positive, got {self.sdtw_gamma}")
         if not 0.0 <= self.alpha_warmup <= 1.0:

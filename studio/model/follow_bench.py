@@ -43,6 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", choices=("follow", "match"), default="follow",
                         help="follow: fixed markers, the demonstration names the target; match: markers shuffled per "
                              "episode, the agent must find the demonstrated colour in its own frame")  # fmt: skip
+    parser.add_argument("--demo-task-weight", type=float, default=0.0,
+                        help="weight of the auxiliary demonstration-task loss (TrainConfig.demo_task_weight)")
     parser.add_argument("--episodes", type=int, default=0,
                         help="episodes per task and role (default 3 for follow, 12 for match)")  # fmt: skip
 
@@ -64,11 +66,12 @@ def measure(args: argparse.Namespace) -> dict:
     match = args.task == "match"
     episodes = args.episodes or (12 if match else 3)
     result: dict = {"task": args.task, "episodes_per_task": episodes, "steps": args.steps, "lr": args.lr,
+                    "demo_task_weight": args.demo_task_weight,
                     "threads": args.threads,
                     "seed": args.seed, "mean_target_final_err_m": None, "variants": {}}  # fmt: skip
     for name in names:
         run = tiny_run_config(max_steps=args.steps, lr_max=args.lr, val_every=every, val_batches=0, seed=args.seed,
-                              **NO_AUGMENTATION)  # fmt: skip
+                              demo_task_weight=args.demo_task_weight, **NO_AUGMENTATION)  # fmt: skip
         for field, value in VARIANTS[name].items():
             setattr(run.model, field, value)
         t0 = time.perf_counter()
@@ -84,6 +87,7 @@ def measure(args: argparse.Namespace) -> dict:
                 "final_err_m": round(r["val_final_err_m"], 4),
                 "path_err_m": round(r["val_path_err_m"], 4),
                 "demo_effect_m": round(r.get("val_demo_effect_m", 0.0), 4),
+                **({"task_acc": round(r["val_task_acc"], 3)} if "val_task_acc" in r else {}),
             }
             for r in vals
         ]

@@ -56,6 +56,7 @@ class ModelOutput:
         states: (B, S, *state_shape) predicted states r_2..r_{S+1} (the actions when there is no world model).
         pooled: (B, S, 2C) spatially pooled predicted states.
         target_pooled: (B, S, 2C) pooled encodings of the real future agent frames, or None.
+        demo_task_logits: (U, classes) the demonstration-task classifier's logits per expert video, or None.
     """
 
     waypoints: torch.Tensor
@@ -63,6 +64,7 @@ class ModelOutput:
     states: torch.Tensor
     pooled: torch.Tensor
     target_pooled: torch.Tensor | None
+    demo_task_logits: torch.Tensor | None = None
 
 
 class OSVIWM(nn.Module):
@@ -102,6 +104,13 @@ class OSVIWM(nn.Module):
             nn.Linear(cfg.head_hidden, cfg.waypoint_rows * 4),
         )
         self.register_buffer("depth_offset", torch.tensor(float(cfg.depth_offset)))
+        # Optional (not in the paper): names the demonstrated task from π's outputs at the expert frames,
+        # averaged over frames and cells; trained by TrainConfig.demo_task_weight.
+        self.demo_task_head = (
+            nn.Sequential(nn.LayerNorm(self.state_shape[0]), nn.Linear(self.state_shape[0], cfg.demo_task_classes))
+            if cfg.demo_task_classes > 0
+            else None
+        )
 
     # ---------------------------------------------------------------- pieces
     def encode(self, frames: torch.Tensor) -> torch.Tensor:
@@ -194,9 +203,20 @@ class OSVIWM(nn.Module):
                         agent_frames[:, target_idx].reshape(b * len(target_idx), *agent_frames.shape[2:])
                     )
             target_pooled = self.pool(future).reshape(b, len(target_idx), self.pooled_dim)
-        actions, states = self.rollout(expert_states, agent_state, expert_ids)
+        logits = None
+        if self.demo_task_head is None:
+            actions, states = self.rollout(expert_states, agent_state, expert_ids)
+        else:
+            if expert_ids is None and u != b:
+                raise ValueError(f"{u} expert videos for {b} agent frames need expert_ids")
+            cache, outputs = self.action_model.context_and_outputs(expert_states)
+            feats = outputs.mean(dim=1) if outputs.dim() == 3 else outputs.mean(dim=(1, 3, 4))
+            logits = self.demo_task_head(feats)
+            actions, states = self.rollout_from_context(
+                cache if expert_ids is None else cache.index_select(expert_ids), agent_state
+            )
         pooled = self.pool(states)
-        return ModelOutput(self.predict_waypoints(pooled), actions, states, pooled, target_pooled)
+        return ModelOutput(self.predict_waypoints(pooled), actions, states, pooled, target_pooled, logits)
 
     # ---------------------------------------------------------------- waypoints
     def decode_waypoints(self, raw: torch.Tensor, K: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -33,7 +33,7 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +44,7 @@ from torch.utils.data import DataLoader
 
 from studio.model.augment import augment_batch
 from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, expert_indices_of
-from studio.model.config import RunConfig
+from studio.model.config import ModelConfig, RunConfig, TrainConfig
 from studio.model.losses import alpha as alpha_at
 from studio.model.losses import waypoint_errors, waypoint_loss, world_model_loss
 from studio.model.osvi_wm import OSVIWM
@@ -98,10 +98,13 @@ def _dist_info() -> tuple[int, int]:
 
 
 def _config_differences(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
+    """Settings that differ; a setting a checkpoint predates counts as its default (what it trained with)."""
     diffs = []
+    defaults = {"model": asdict(ModelConfig()), "train": asdict(TrainConfig())}
     for section in ("model", "train"):
         for key in sorted(set(saved.get(section, {})) | set(current[section])):
-            a, b = saved.get(section, {}).get(key), current[section].get(key)
+            a = saved.get(section, {}).get(key, defaults[section].get(key))
+            b = current[section].get(key)
             if isinstance(a, list | tuple) and isinstance(b, list | tuple):
                 a, b = list(a), list(b)
             if a != b and not (section == "train" and key in _RESUMABLE_CHANGES):
@@ -171,6 +174,12 @@ def compute_losses(
     )
     loss = loss_sdtw
     parts = {"loss_sdtw": float(loss_sdtw.detach()), "alpha": a}
+    if out.demo_task_logits is not None and cfg.demo_task_weight > 0:
+        labels = batch.expert_tasks.to(out.demo_task_logits.device)
+        loss_task = torch.nn.functional.cross_entropy(out.demo_task_logits.float(), labels)
+        loss = loss + cfg.demo_task_weight * loss_task
+        parts["loss_task"] = float(loss_task.detach())
+        parts["task_acc"] = float((out.demo_task_logits.argmax(-1) == labels).float().mean())
     if out.target_pooled is not None:
         loss_wm = world_model_loss(out.pooled, out.target_pooled)
         loss = loss + a * loss_wm
@@ -282,6 +291,8 @@ def train(
         out.mkdir(parents=True, exist_ok=True)
 
     torch.manual_seed(cfg.seed)
+    if cfg.demo_task_weight > 0 and run.model.demo_task_classes == 0:
+        run.model.demo_task_classes = len(train_set.tasks)
     model = OSVIWM(run.model).to(device)
     plan = BatchPlan(
         len(train_set),
@@ -324,12 +335,19 @@ def train(
         start_step, best_val = int(ckpt["step"]), ckpt.get("best_val_loss")
     elif init is not None:
         start = load_checkpoint(init, device)
-        diffs = _config_differences(
-            {"model": start["config"]["model"]}, {"model": run.to_dict()["model"], "train": {}}
-        )
+        saved = dict(start["config"]["model"])
+        # A demonstration-task head may be added to a checkpoint trained without one (it starts untrained).
+        new_head = not saved.get("demo_task_classes") and run.model.demo_task_classes > 0
+        if new_head:
+            saved["demo_task_classes"] = run.model.demo_task_classes
+        diffs = _config_differences({"model": saved}, {"model": run.to_dict()["model"], "train": {}})
         if diffs:
             raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")
-        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()})
+        state = {k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()}
+        missing, unexpected = model.load_state_dict(state, strict=False)
+        if unexpected or [k for k in missing if not (new_head and k.startswith("demo_task_head."))]:
+            raise CheckpointMismatch(f"{init}: weights do not match the model (missing {missing}, unexpected "
+                                     f"{unexpected})")  # fmt: skip
     else:
         model.set_depth_prior(median_path_depth(train_set))
     metrics_path = out / "metrics.jsonl"

@@ -127,3 +127,30 @@ def test_wrong_input_size_is_rejected():
     model = OSVIWM(tiny())
     with pytest.raises(ValueError, match="frames must be"):
         model(frames(1, 3, (32, 32)), frames(1, 4, (32, 32)))
+
+
+def test_the_demonstration_task_head_reads_expert_frames_only_and_leaves_the_plan_unchanged():
+    torch.manual_seed(0)
+    plain = OSVIWM(tiny()).eval()
+    torch.manual_seed(0)
+    model = OSVIWM(tiny(demo_task_classes=5)).eval()
+    assert plain(frames(2, 3, (48, 64)), frames(2, 4, (48, 64), seed=1)).demo_task_logits is None
+    missing = set(model.state_dict()) - set(plain.state_dict())
+    assert missing and all(k.startswith("demo_task_head.") for k in missing)
+    model.load_state_dict({**model.state_dict(), **plain.state_dict()})
+    expert = frames(2, 3, (48, 64))
+    agent = frames(4, 4, (48, 64), seed=1)
+    ids = torch.tensor([0, 1, 1, 0])
+    with torch.no_grad():
+        out = model(expert, agent, ids)
+        ref = plain(expert, agent, ids)
+        other_agent = model(expert, frames(4, 4, (48, 64), seed=2), ids)
+    assert out.demo_task_logits.shape == (2, 5)  # one row per expert video, not per pair
+    assert torch.equal(out.waypoints, ref.waypoints)  # the head only adds an output
+    assert torch.equal(out.demo_task_logits, other_agent.demo_task_logits)  # and sees the expert frames only
+    model.train()
+    loss = torch.nn.functional.cross_entropy(model(expert, agent, ids).demo_task_logits, torch.tensor([3, 1]))
+    loss.backward()
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in model.action_model.parameters())
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in model.encoder.parameters())
+    assert all(p.grad is None for p in model.head.parameters())  # the waypoint head is not involved

@@ -327,3 +327,43 @@ def test_no_world_model_loss_during_its_warm_up(tmp_path):
     logged = {r["step"]: r for r in records(tmp_path) if "loss" in r}
     assert [logged[s]["alpha"] for s in (1, 2, 3, 4)] == [0.0, 0.0, 1.0, 1.0]
     assert "loss_wm" not in logged[2] and logged[3]["loss_wm"] > 0.0  # no target encodings until then
+
+
+def test_the_demonstration_task_loss_trains_and_its_head_is_saved_with_the_checkpoint(tmp_path):
+    from studio.model.train import model_from_checkpoint
+
+    run = tiny_run_config(max_steps=3, batch_size=4, val_every=3, val_batches=1, demo_task_weight=0.5)
+    source = SyntheticPairs(n_tasks=3)
+    train(run, source, SyntheticPairs(n_tasks=3, split="val"), tmp_path, show_progress=False)
+    rec = records(tmp_path)
+    steps = [r for r in rec if "loss" in r and "val_loss" not in r]
+    assert all(0 < r["loss_task"] < 10 and 0 <= r["task_acc"] <= 1 for r in steps)
+    assert all(r["loss"] > r["loss_sdtw"] for r in steps)  # the weighted term is part of the total
+    assert "val_task_acc" in [r for r in rec if "val_loss" in r][-1]
+    ckpt = load_checkpoint(tmp_path / "last.pt")
+    assert ckpt["config"]["model"]["demo_task_classes"] == 3  # set from the training tasks
+    assert model_from_checkpoint(ckpt).demo_task_head[-1].out_features == 3
+    plain = tiny_run_config(max_steps=1, batch_size=4, val_every=3)
+    train(plain, source, None, tmp_path / "plain", show_progress=False)
+    assert all("loss_task" not in r for r in records(tmp_path / "plain"))
+
+
+def test_a_checkpoint_without_the_task_head_resumes_and_inits_a_run_that_adds_one(tmp_path):
+
+    first = tiny_run_config(max_steps=2, batch_size=4, val_every=100)
+    train(first, SyntheticPairs(), None, tmp_path / "a", show_progress=False)
+    ckpt_path = tmp_path / "a" / "last.pt"
+    ckpt = torch.load(ckpt_path, weights_only=False)
+    for section, key in (("model", "demo_task_classes"), ("train", "demo_task_weight")):
+        del ckpt["config"][section][key]  # as written before these settings existed
+    torch.save(ckpt, ckpt_path)
+    longer = first.with_overrides(["train.max_steps=3"])
+    assert train(longer, SyntheticPairs(), None, tmp_path / "a", show_progress=False).step == 3  # resumes
+    with_head = first.with_overrides(["train.max_steps=1", "train.demo_task_weight=1.0", "train.lr_max=1e-12",
+                                      "train.lr_final=1e-12"])  # fmt: skip
+    train(with_head, SyntheticPairs(), None, tmp_path / "b", show_progress=False, init=ckpt_path)
+    after = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert after["config"]["model"]["demo_task_classes"] == len(SyntheticPairs().tasks)
+    trained = load_checkpoint(ckpt_path)["model"]
+    assert all(torch.allclose(trained[k].float(), after["model"][k].float(), atol=1e-6)
+               for k in trained if trained[k].is_floating_point() and "running" not in k)  # fmt: skip
