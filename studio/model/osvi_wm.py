@@ -131,14 +131,9 @@ class OSVIWM(nn.Module):
         self, expert_states: torch.Tensor, agent_state: torch.Tensor, expert_ids: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Latent actions and predicted states (B, S, *state_shape) from expert states (U, N, …) and r_1 (B, …)."""
-        if expert_ids is None and expert_states.shape[0] != agent_state.shape[0]:
-            raise ValueError(
-                f"{expert_states.shape[0]} expert videos for {agent_state.shape[0]} agent frames need expert_ids"
-            )
         cache = self.action_model.context(expert_states)
-        if expert_ids is not None:
-            cache = cache.index_select(expert_ids)
-        return self.rollout_from_context(cache, agent_state)
+        pairs = _pair_context(cache, expert_ids, expert_states.shape[0], agent_state.shape[0])
+        return self.rollout_from_context(pairs, agent_state)
 
     def rollout_from_context(
         self, context: KVCache, agent_state: torch.Tensor
@@ -203,18 +198,12 @@ class OSVIWM(nn.Module):
                         agent_frames[:, target_idx].reshape(b * len(target_idx), *agent_frames.shape[2:])
                     )
             target_pooled = self.pool(future).reshape(b, len(target_idx), self.pooled_dim)
+        cache, expert_outputs = self.action_model.context_and_outputs(expert_states)
         logits = None
-        if self.demo_task_head is None:
-            actions, states = self.rollout(expert_states, agent_state, expert_ids)
-        else:
-            if expert_ids is None and u != b:
-                raise ValueError(f"{u} expert videos for {b} agent frames need expert_ids")
-            cache, outputs = self.action_model.context_and_outputs(expert_states)
-            feats = outputs.mean(dim=1) if outputs.dim() == 3 else outputs.mean(dim=(1, 3, 4))
-            logits = self.demo_task_head(feats)
-            actions, states = self.rollout_from_context(
-                cache if expert_ids is None else cache.index_select(expert_ids), agent_state
-            )
+        if self.demo_task_head is not None:  # mean over frames (and cells) of π's outputs at the expert frames
+            dims = (1, 3, 4) if expert_outputs.dim() == 5 else (1,)
+            logits = self.demo_task_head(expert_outputs.mean(dim=dims))
+        actions, states = self.rollout_from_context(_pair_context(cache, expert_ids, u, b), agent_state)
         pooled = self.pool(states)
         return ModelOutput(self.predict_waypoints(pooled), actions, states, pooled, target_pooled, logits)
 
@@ -235,6 +224,15 @@ class OSVIWM(nn.Module):
     def set_depth_prior(self, depth_m: float) -> None:
         """Centre the depth parameterisation on a typical camera depth of the training paths (metres)."""
         self.depth_offset.fill_(float(depth_m))
+
+
+def _pair_context(cache: KVCache, expert_ids: torch.Tensor | None, experts: int, pairs: int) -> KVCache:
+    """The expert cache row of each pair (``expert_ids`` maps pairs to expert videos; None: one video each)."""
+    if expert_ids is not None:
+        return cache.index_select(expert_ids)
+    if experts != pairs:
+        raise ValueError(f"{experts} expert videos for {pairs} agent frames need expert_ids")
+    return cache
 
 
 def waypoint_set(rows: torch.Tensor, n: int) -> torch.Tensor:

@@ -163,7 +163,6 @@ def measure(args: argparse.Namespace) -> dict:
     from studio.ui import app as app_module
     from studio.ui import scene_view
     from studio.ui.app import StudioApp
-    from studio.ui.panels.teleop import scene_tasks
 
     if not Path(args.chromium).exists():
         raise SystemExit(f"studio bench ui: {args.chromium} is missing (apt-get install chromium)")
@@ -198,8 +197,7 @@ def measure(args: argparse.Namespace) -> dict:
                         raise SystemExit(f"studio bench ui: unknown scene {args.scene!r}; "
                                          f"choose from {teleop.scene.options}")  # fmt: skip
                     teleop.scene.value = args.scene
-                    teleop.task.options = tuple(scene_tasks(args.scene))
-                    teleop.task.value = teleop.task.options[0]
+                    teleop.narrow_choices()
                     teleop.robot.value = args.robot
                     teleop.open()
                     _until(lambda: teleop.info is not None and teleop.info.scene == args.scene, 180, "the session")

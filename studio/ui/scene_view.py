@@ -19,6 +19,7 @@ the browser redraws all of them on the CPU for every pose frame (`studio bench u
 
 from __future__ import annotations
 
+import hashlib
 import threading
 from collections.abc import Sequence
 
@@ -75,8 +76,6 @@ def geom_mesh(
 
 def decimated(spec: msg.MeshSpec, max_faces: int) -> trimesh.Trimesh:
     """``spec``'s mesh with about ``max_faces`` triangles (quadric decimation; computed once per content)."""
-    import hashlib
-
     key = (hashlib.blake2b(spec.vertices + spec.faces, digest_size=16).digest(), max_faces)
     with _decimated_lock:
         if key in _decimated:

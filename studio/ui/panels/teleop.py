@@ -367,6 +367,11 @@ class TeleopPanel:
     def _on_scene(self, event) -> None:
         if event.client is None:
             return
+        self.narrow_choices()
+        self.tab.run(self.open, "opening the session")
+
+    def narrow_choices(self) -> None:
+        """Task and robot choices for the chosen scene (Meta-World has the Sawyer only)."""
         scene = self.scene.value
         tasks = scene_tasks(scene)
         self.task.options = tuple(tasks)
@@ -374,7 +379,6 @@ class TeleopPanel:
         self.robot.options = ("sawyer",) if scene == "metaworld" else ("sawyer", "panda")
         if self.robot.value not in self.robot.options:
             self.robot.value = "sawyer"
-        self.tab.run(self.open, "opening the session")
 
     def _on_scene_button(self, event) -> None:
         if event.target.value == "New seed":
