@@ -69,7 +69,7 @@ class ModelConfig:
         n_expert_frames: N, expert frames per demonstration.
         n_agent_frames: M, agent frames per training clip (the model predicts M − 1 future states).
         encoder_stages: how many ResNet-18 stages to keep (4 = the whole trunk, stride 32; 3 stops at stride 16).
-        pretrained: load torchvision's ImageNet weights for the trunk (downloads; off by default).
+        pretrained: load torchvision's published ImageNet weights into the trunk (downloads; off by default).
         channels_last: run the convolutional trunk in channels-last memory layout (faster on CPU).
         state_channels: 1×1-convolution reduction of the trunk's maps to this many channels; 0 keeps them.
         action_blocks, action_heads, action_attn_dim, action_mlp_dim, action_dropout: the causal transformer π.

@@ -1,4 +1,5 @@
-"""The shared image encoder: a torchvision ResNet-18 trunk (without global pooling) giving F×H×W latent states.
+"""The shared image encoder: a ResNet-18 trunk (``studio.model.resnet``, without global pooling) giving F×H×W
+latent states.
 
 Random initialisation by default; ``pretrained=True`` is an explicit opt-in that downloads torchvision's ImageNet
 weights (the paper initialises from ImageNet; we keep network access out of the default path). The trunk can be
@@ -15,13 +16,13 @@ from __future__ import annotations
 import copy
 
 import torch
-import torchvision
 from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval
 
+from studio.model.resnet import STAGE_CHANNELS, imagenet_state_dict, resnet18_layers
+
 _IMAGENET_MEAN = (0.485, 0.456, 0.406)
 _IMAGENET_STD = (0.229, 0.224, 0.225)
-_STAGE_CHANNELS = {1: 64, 2: 128, 3: 256, 4: 512}
 
 
 class Encoder(nn.Module):
@@ -37,11 +38,10 @@ class Encoder(nn.Module):
         super().__init__()
         if not 1 <= stages <= 4:
             raise ValueError(f"Encoder stages must be 1..4, got {stages}")
-        weights = torchvision.models.ResNet18_Weights.IMAGENET1K_V1 if pretrained else None
-        net = torchvision.models.resnet18(weights=weights)
-        layers = [net.conv1, net.bn1, net.relu, net.maxpool, net.layer1, net.layer2, net.layer3, net.layer4]
-        self.trunk = nn.Sequential(*layers[: 4 + stages])
-        trunk_channels = _STAGE_CHANNELS[stages]
+        self.trunk = nn.Sequential(*resnet18_layers(stages))
+        if pretrained:
+            self.trunk.load_state_dict(imagenet_state_dict(stages))
+        trunk_channels = STAGE_CHANNELS[stages - 1]
         self.reduce = nn.Conv2d(trunk_channels, state_channels, kernel_size=1) if state_channels > 0 else None
         self.out_channels = state_channels if state_channels > 0 else trunk_channels
         self.channels_last = channels_last
