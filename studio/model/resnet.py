@@ -17,6 +17,8 @@ from torch import nn
 IMAGENET_URL = "https://download.pytorch.org/models/resnet18-f37072fd.pth"
 
 STAGE_CHANNELS = (64, 128, 256, 512)
+#: torchvision's top-level module names → their index in ``nn.Sequential(*resnet18_layers())``.
+TRUNK_INDEX = {"conv1": 0, "bn1": 1, "layer1": 4, "layer2": 5, "layer3": 6, "layer4": 7}
 
 
 class BasicBlock(nn.Module):
@@ -83,7 +85,7 @@ def trunk_key(torchvision_key: str) -> str | None:
     """Where a torchvision ResNet-18 parameter lives in ``nn.Sequential(*resnet18_layers())``; None for the
     classifier (``fc``) and anything else the trunk does not have."""
     head, _, rest = torchvision_key.partition(".")
-    index = {"conv1": 0, "bn1": 1, "layer1": 4, "layer2": 5, "layer3": 6, "layer4": 7}.get(head)
+    index = TRUNK_INDEX.get(head)
     return None if index is None or not rest else f"{index}.{rest}"
 
 

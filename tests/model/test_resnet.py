@@ -6,7 +6,7 @@ import pytest
 import torch
 from torch import nn
 
-from studio.model.resnet import remap_torchvision, resnet18_layers, trunk_key
+from studio.model.resnet import TRUNK_INDEX, remap_torchvision, resnet18_layers, trunk_key
 
 torch.set_num_threads(1)
 
@@ -22,7 +22,7 @@ TORCHVISION_SEED0_NEXT_RAND = [0.8865256309509277, 0.21111810207366943, 0.782060
 
 def torchvision_named(trunk: nn.Sequential) -> dict[str, torch.Tensor]:
     """The trunk's state dict under torchvision's names (the inverse of ``trunk_key``)."""
-    names = {0: "conv1", 1: "bn1", 4: "layer1", 5: "layer2", 6: "layer3", 7: "layer4"}
+    names = {index: name for name, index in TRUNK_INDEX.items()}
     out = {}
     for key, value in trunk.state_dict().items():
         index, _, rest = key.partition(".")
