@@ -275,13 +275,55 @@ def train(
     ``init`` starts a new run from the weights of another checkpoint or policy file with the same model
     configuration (fine-tuning on new data, or a curriculum over task sets), with a fresh optimiser and schedule;
     it is ignored when the run resumes from its own ``last.pt``.
+
+    Under ``torchrun`` the process group is joined here unless the caller already did; a group joined here is
+    also left here, after a barrier, so that no rank tears its gloo connections down while a peer still talks on
+    them (ranks exiting at different moments died with SIGABRT in gloo's threads otherwise).
     """
+    world, _ = _dist_info()
+    owns_group = world > 1 and not dist.is_initialized()
+    if owns_group:
+        dist.init_process_group("nccl" if torch.device(device).type == "cuda" else "gloo")
+    try:
+        result = _train_loop(
+            run,
+            train_set,
+            val_set,
+            out_dir,
+            device=device,
+            progress=progress,
+            cancel=cancel,
+            show_progress=show_progress,
+            resume=resume,
+            init=init,
+        )
+    except BaseException:
+        if owns_group:
+            dist.destroy_process_group()  # no barrier: the peers may never get there
+        raise
+    if owns_group:
+        dist.barrier()
+        dist.destroy_process_group()
+    return result
+
+
+def _train_loop(
+    run: RunConfig,
+    train_set: PairSource,
+    val_set: PairSource | None,
+    out_dir: str | Path,
+    *,
+    device: str | torch.device = "cpu",
+    progress: Callable[[dict[str, Any]], None] | None = None,
+    cancel: Any = None,
+    show_progress: bool = True,
+    resume: bool = True,
+    init: str | Path | None = None,
+) -> TrainResult:
     cfg = run.train
     device = torch.device(device)
     out = Path(out_dir)
     world, rank = _dist_info()
-    if world > 1 and not dist.is_initialized():
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
     if cfg.batch_size % world:
         raise ValueError(
             f"batch_size {cfg.batch_size} is not divisible by the {world} data-parallel processes"
