@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+import torch
 
 from studio.cli import main
 
@@ -13,10 +14,19 @@ pytestmark = pytest.mark.timeout(900)
 
 def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, capsys):
     args = ["quickstart", "--data-dir", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--episodes", "2",
-            "--steps", "1", "--eval-episodes", "1", "--workers", "1", "--set", "train.batch_size=4"]  # fmt: skip
+            "--steps", "2", "--refine-steps", "1", "--eval-episodes", "1", "--workers", "1", "--set", "train.batch_size=4"]  # fmt: skip
     assert main(args) == 0
     summary = json.loads((tmp_path / "run" / "quickstart.json").read_text())
-    assert set(summary["stage_wall_s"]) == {"collect", "train", "eval"}
+    assert set(summary["stage_wall_s"]) == {"collect", "train", "refine", "eval"}
+    # The refine stage starts from the first stage's weights and its checkpoint is the one evaluated.
+    assert summary["checkpoint"] == str(tmp_path / "run" / "refine" / "last.pt")
+    base = torch.load(tmp_path / "run" / "base" / "last.pt", weights_only=False)
+    refined = torch.load(summary["checkpoint"], weights_only=False)
+    assert base["step"] == 2 and refined["step"] == 1
+    refine_run = json.loads((tmp_path / "run" / "refine" / "config.json").read_text())
+    assert refine_run["init"] == str(tmp_path / "run" / "base" / "last.pt")
+    assert base["config"]["train"]["expert_hflip"] == 0.5 and refined["config"]["train"]["alpha_warmup"] == 0
+    assert refined["config"]["train"]["demo_task_weight"] == 1.0 and refined["config"]["train"]["seed"] == 1
     assert summary["rollouts"] == 2 and set(summary["tasks"]) == {"pick_place/bar->blue", "pick_place/bar->yellow"}
     assert 0.0 <= summary["held_out_success"] <= 1.0
     out = capsys.readouterr().out
