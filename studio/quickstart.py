@@ -79,16 +79,17 @@ def run(args: argparse.Namespace) -> int:
         return rc or studio(["collect", "--robot", "panda", "--tasks", "train", *episodes, *common])
 
     _stage("collect", times, collect)
-    base, refined = out / "base", out / "refine"
-    train = ["train", "--config", "cpu", "--data", str(root), "--threads", str(args.workers), "--set"]
-    _stage("train", times, lambda: studio([*train, *BASE_SETTINGS, *args.set, "--out", str(base),
-                                           "--steps", str(args.steps), "--seed", str(args.seed)]))  # fmt: skip
-    checkpoint = base / "last.pt"
+    def train(run_dir: Path, steps: int, seed: int, settings: tuple[str, ...], init: Path | None = None) -> int:
+        return studio(["train", "--config", "cpu", "--data", str(root), "--out", str(run_dir), "--steps", str(steps),
+                       "--seed", str(seed), "--threads", str(args.workers), *(["--init", str(init)] if init else []),
+                       "--set", *settings, *args.set])  # fmt: skip
+
+    checkpoint = out / "base" / "last.pt"
+    _stage("train", times, lambda: train(out / "base", args.steps, args.seed, BASE_SETTINGS))
     if args.refine_steps > 0:
-        _stage("refine", times, lambda: studio([*train, *BASE_SETTINGS, *REFINE_SETTINGS, *args.set,
-                                                "--out", str(refined), "--init", str(checkpoint),
-                                                "--steps", str(args.refine_steps), "--seed", str(args.seed + 1)]))  # fmt: skip
-        checkpoint = refined / "last.pt"
+        _stage("refine", times, lambda: train(out / "refine", args.refine_steps, args.seed + 1,
+                                              BASE_SETTINGS + REFINE_SETTINGS, init=checkpoint))  # fmt: skip
+        checkpoint = out / "refine" / "last.pt"
     if args.decoder_steps > 0:
         _stage("decoder", times, lambda: studio(["train-decoder", "--model", str(checkpoint), "--data", str(root),
                                                  "--out", str(out / "decoder"), "--steps", str(args.decoder_steps)]))  # fmt: skip

@@ -5,9 +5,9 @@ from __future__ import annotations
 import json
 
 import pytest
-import torch
 
 from studio.cli import main
+from studio.model.train import load_checkpoint
 
 pytestmark = pytest.mark.timeout(900)
 
@@ -20,8 +20,8 @@ def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, 
     assert set(summary["stage_wall_s"]) == {"collect", "train", "refine", "eval"}
     # The refine stage starts from the first stage's weights and its checkpoint is the one evaluated.
     assert summary["checkpoint"] == str(tmp_path / "run" / "refine" / "last.pt")
-    base = torch.load(tmp_path / "run" / "base" / "last.pt", weights_only=False)
-    refined = torch.load(summary["checkpoint"], weights_only=False)
+    base = load_checkpoint(tmp_path / "run" / "base" / "last.pt")
+    refined = load_checkpoint(summary["checkpoint"])
     assert base["step"] == 2 and refined["step"] == 1
     refine_run = json.loads((tmp_path / "run" / "refine" / "config.json").read_text())
     assert refine_run["init"] == str(tmp_path / "run" / "base" / "last.pt")
