@@ -86,6 +86,8 @@ class StudioTab:
         self._token = 0
         self._closed = threading.Event()
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"tab{client.client_id}")
+        self._actions: list[str] = []  # what run() holds, oldest (the running one) first
+        self._actions_lock = threading.Lock()
         self.pose_pushes = 0
         gui = client.gui
         gui.configure_theme(control_width="large", show_logo=False)
@@ -122,17 +124,40 @@ class StudioTab:
 
     # ------------------------------------------------------------------ helpers for panels
     def run(self, fn: Callable[[], Any], what: str) -> None:
-        """Run a slow action off viser's callback threads (one at a time per tab); errors become notifications."""
+        """Run a slow action off viser's callback threads (one at a time per tab); errors become notifications.
+
+        An action that has to wait for an earlier one says so, so that a click never seems lost."""
 
         def guarded() -> None:
+            started = time.monotonic()
             try:
                 fn()
             except Exception as e:
                 log.warning("tab %s: %s failed:\n%s", self.client.client_id, what, traceback.format_exc())
                 self.notify(f"Could not finish {what}", _describe(e), error=True)
+            finally:
+                with self._actions_lock:
+                    self._actions.remove(what)
+                log.debug("tab %s: %s took %.2f s", self.client.client_id, what, time.monotonic() - started)
 
-        if not self._closed.is_set():
-            self._executor.submit(guarded)
+        if self._closed.is_set():
+            return
+        with self._actions_lock:
+            ahead = list(self._actions)
+            self._actions.append(what)
+        if ahead:
+            self.notify(
+                "Waiting",
+                f"{what} starts after {ahead[0]}" + (f" and {len(ahead) - 1} more" if len(ahead) > 1 else ""),
+                seconds=3.0,
+            )
+        self._executor.submit(guarded)
+
+    @property
+    def actions(self) -> tuple[str, ...]:
+        """The actions :meth:`run` holds: the running one first, then those waiting for it."""
+        with self._actions_lock:
+            return tuple(self._actions)
 
     def notify(self, title: str, body: str, error: bool = False, seconds: float | None = None) -> None:
         with contextlib.suppress(Exception):

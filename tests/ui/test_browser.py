@@ -224,14 +224,42 @@ def _tab(studio):
     return tab
 
 
-def _wait(predicate, timeout: float, what: str):
+def _wait(predicate, timeout: float, what: str, state=None):
+    """Poll ``predicate`` until it is truthy; on timeout, fail with ``state()`` (what the app showed) if given."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         value = predicate()
         if value:
             return value
         time.sleep(0.1)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}" + (f"; {state()}" if state else ""))
+
+
+def _teleop_state(tab) -> str:
+    """What the teleop panel shows and what its tab is busy with, for failure messages."""
+    return f"status {tab.teleop.status.content!r}, tab actions {tab.actions}, recording {tab.teleop._recording}"
+
+
+def _click_until_taken(locator, taken, what: str, state, attempts: int = 3, wait: float = 30.0) -> None:
+    """Click until the server shows it took the click (``taken()``): a click can be lost on a loaded machine
+    (``_click_until``). Re-clicking is safe for the buttons used with it (a second Stop & save is a no-op)."""
+    for attempt in range(attempts):
+        _click(locator)
+        try:
+            _wait(taken, wait, what, state)
+            return
+        except AssertionError:
+            if attempt == attempts - 1:
+                raise
+
+
+def _stop_and_save(page, tab) -> None:
+    """Click Stop & save until the panel took it (no longer recording, or saving), then wait for the store."""
+    tp = tab.teleop
+    _click_until_taken(page.get_by_role("button", name="Stop & save"),
+                       lambda: not tp.status.content.startswith("Recording"), "Stop & save to be taken",
+                       lambda: _teleop_state(tab))  # fmt: skip
+    _wait(lambda: tp.status.content.startswith("Saved"), 120, "the episode to be stored", lambda: _teleop_state(tab))
 
 
 def _screen_point(page, client, point: np.ndarray) -> tuple[float, float]:
@@ -290,8 +318,7 @@ def test_teleop_records_and_saves_an_episode(studio, page, shots):
     _wait(lambda: tp.success.value and tp._success_touched, 10, "the success box to be ticked")
     _shot(page, shots / "teleop-recording.png")
     assert _colours(shots / "teleop-recording.png") > 300, "the 3D view looks blank"
-    _click(page.get_by_role("button", name="Stop & save"))
-    _wait(lambda: tp.status.content.startswith("Saved"), 120, "the episode to be stored")
+    _stop_and_save(page, tab)
     page.get_by_text("Saved").first.wait_for(timeout=60_000)
     _shot(page, shots / "teleop-saved.png")
     (new,) = [m for m in studio.store.episodes() if m.id not in before]
@@ -528,8 +555,7 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
         time.sleep(1 / 60)
     _wait(lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.02, 20,
           "the Sawyer to follow the drag")  # fmt: skip
-    _click(page.get_by_role("button", name="Stop & save"))
-    _wait(lambda: tp.status.content.startswith("Saved"), 120, "the episode to be stored")
+    _stop_and_save(page, tab)
     (new,) = [m for m in studio.store.episodes() if m.id not in before]
     assert (new.scene, new.task, new.source, new.role, new.embodiment) == ("metaworld", task, "teleop", "expert",
                                                                            "sawyer")  # fmt: skip

@@ -204,8 +204,8 @@ class TeleopPanel:
         if self.client is None or self.info is None:
             return None
         received = time.perf_counter()
-        if self.tab.mode != "teleop":
-            self.tab.run(self.show_live, "showing the teleop scene")
+        if self.tab.mode != "teleop" and "showing the teleop scene" not in self.tab.actions:
+            self.tab.run(self.show_live, "showing the teleop scene")  # once, not once per drag event
         seq = self.client.set_target(position, self._gripper)
         with self._pending_lock:
             self._pending[seq] = received
@@ -291,6 +291,7 @@ class TeleopPanel:
     def stop_and_save(self) -> None:
         if self.client is None or not self._recording:
             return
+        self.stop.disabled = self.discard.disabled = True  # saving takes a while: no second stop meanwhile
         verdict = bool(self.success.value)
         self.status.content = "Stopping — rendering and storing the episode…"
         try:
@@ -298,6 +299,13 @@ class TeleopPanel:
         except bus.RemoteError as e:
             self.status.content = f"Still recording: {e.message}"
             self.tab.notify("Not saved yet", e.message, error=True)
+            self._set_recording_ui(True)
+            return
+        except TimeoutError as e:  # the worker took the recording but has not reported it stored
+            self._recording = False
+            self._set_recording_ui(False)
+            self.status.content = f"**Not confirmed**: {e}; the worker may still store it (see Datasets)."
+            self.tab.notify("Episode not confirmed", str(e), error=True)
             return
         self._recording = False
         self._set_recording_ui(False)
