@@ -18,8 +18,8 @@ def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, 
     assert main(args) == 0
     summary = json.loads((tmp_path / "run" / "quickstart.json").read_text())
     assert set(summary["stage_wall_s"]) == {"collect", "train", "refine", "eval"}
-    # The refine stage starts from the first stage's weights and its checkpoint is the one evaluated.
-    assert summary["checkpoint"] == str(tmp_path / "run" / "refine" / "last.pt")
+    # The refine stage starts from the first stage's weights; its lowest-validation-loss checkpoint is evaluated.
+    assert summary["checkpoint"] == str(tmp_path / "run" / "refine" / "best.pt")
     base = load_checkpoint(tmp_path / "run" / "base" / "last.pt")
     refined = load_checkpoint(summary["checkpoint"])
     assert base["step"] == 2 and refined["step"] == 1
