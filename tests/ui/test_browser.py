@@ -542,6 +542,10 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     assert tp.robot.options == ("sawyer",) and tp.info.robot == "sawyer"
     task = tp.info.task
     assert task.startswith("metaworld/")
+    # The live camera preview shows Meta-World's corner view (a black background, mean ~58), not the tabletop it
+    # showed before (mean ~174), which it once kept showing for a while under the "(live)" label.
+    _wait(lambda: 5 < float(np.asarray(tp.preview.image).mean()) < 120, 30, "the Meta-World camera preview",
+          lambda: f"preview mean {float(np.asarray(tp.preview.image).mean()):.1f}")  # fmt: skip
     time.sleep(1.0)
     _shot(page, shots / "teleop-metaworld.png")
     assert _colours(shots / "teleop-metaworld.png") > 300, "the Meta-World scene looks blank"

@@ -132,6 +132,9 @@ class TeleopPanel:
             self.client = TeleopClient(self.app.hub.session, worker, on_pose=self._on_pose, timeout=10.0)
         scene, robot, task, seed = self.scene.value, self.robot.value, self.task.value, int(self.seed.value)
         self.status.content = f"Opening **{task}** with the **{robot}** on `{self.client.worker}`…"
+        if self.info is not None and (self.info.scene, self.info.robot) != (scene, robot):
+            # The last session's picture is another scene: blank until the new session's first frame.
+            self.preview.image = np.zeros((*PREVIEW_SIZE, 3), np.uint8)
         self.info = self.client.open(scene, robot, task, seed)
         self._recording = False
         self._set_recording_ui(False)
