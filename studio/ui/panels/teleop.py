@@ -304,6 +304,11 @@ class TeleopPanel:
             self.tab.notify("Not saved yet", e.message, error=True)
             self._set_recording_ui(True)
             return
+        except bus.BusError as e:  # no answer: the recording goes on unless the worker is gone (Workers tab)
+            self.status.content = f"Still recording: the sim worker did not answer ({e}); try again."
+            self.tab.notify("Not saved yet", str(e), error=True)
+            self._set_recording_ui(True)
+            return
         except TimeoutError as e:  # the worker took the recording but has not reported it stored
             self._recording = False
             self._set_recording_ui(False)
