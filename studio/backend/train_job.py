@@ -57,14 +57,14 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
 
     from studio.model.config import preset
     from studio.model.train import train
-    from studio.model.train_command import open_splits
+    from studio.model.train_command import open_splits, scene_of
 
     overrides = list(spec.overrides)
     if spec.steps is not None:
         overrides.append(f"train.max_steps={spec.steps}")
     if spec.seed is not None:
         overrides.append(f"train.seed={spec.seed}")
-    cfg = preset(spec.config).with_overrides(overrides)
+    cfg = preset(spec.config, scene_of(spec.scene)).with_overrides(overrides)
     if spec.threads:
         torch.set_num_threads(spec.threads)
     ctx.progress(0, message="preparing the training data")

@@ -43,6 +43,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def scene_of(scene_or_split: str) -> str:
+    """The scene a ``--scene`` value names (a scene, or a split JSON file's scene)."""
+    if scene_or_split.endswith(".json"):
+        from studio.data.splits import load_split
+
+        return load_split(scene_or_split).scene
+    return scene_or_split
+
+
 def open_splits(root: str, run, scene: str, progress: bool = False):
     """The training and validation PairDatasets of the store at ``root`` at the model's input size."""
     try:
@@ -71,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         overrides.append(f"train.seed={args.seed}")
     try:
-        cfg = preset(args.config).with_overrides(overrides)
+        cfg = preset(args.config, scene_of(args.scene)).with_overrides(overrides)
     except ValueError as exc:
         print(f"studio train: {exc}", file=sys.stderr)
         return 2
