@@ -74,7 +74,7 @@ class StudioTab:
         from studio.ui.panels.datasets import DatasetsPanel
         from studio.ui.panels.imitate import ImitatePanel
         from studio.ui.panels.inspector import InspectorPanel
-        from studio.ui.panels.teleop import TeleopPanel
+        from studio.ui.panels.teleop import SHOW_LIVE, TeleopPanel
         from studio.ui.panels.train import TrainPanel
         from studio.ui.panels.upload import UploadPanel
         from studio.ui.panels.workers import WorkersPanel
@@ -93,7 +93,7 @@ class StudioTab:
         gui.configure_theme(control_width="large", show_logo=False)
         self.view_note = gui.add_markdown("")
         self.back_to_teleop = gui.add_button("Back to the live teleop scene", visible=False)
-        self.back_to_teleop.on_click(lambda _: self.run(self.teleop.show_live, "showing the teleop scene"))
+        self.back_to_teleop.on_click(lambda _: self.run(self.teleop.show_live, SHOW_LIVE))
         tabs = gui.add_tab_group()
         with tabs.add_tab("Teleop", icon=viser.Icon.HAND_GRAB):
             self.teleop = TeleopPanel(self)

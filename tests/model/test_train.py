@@ -299,7 +299,7 @@ def test_the_cpu_architecture_learns_to_follow_the_demonstration():
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        effects = []
+        vals = []
         for seed in (0, 1):
             data = SyntheticPairs(n_tasks=4, episodes_per_task=3)
             run = tiny_run_config(max_steps=300, lr_max=3e-3, val_every=300, val_batches=0, seed=seed,
@@ -309,15 +309,13 @@ def test_the_cpu_architecture_learns_to_follow_the_demonstration():
                 train(run, data, SyntheticPairs(n_tasks=4, episodes_per_task=3, split="val"), d,
                       show_progress=False)  # fmt: skip
                 (val,) = [r for r in records(Path(d)) if r.get("split") == "val"]
-            effects.append(val)
-            if val["val_demo_effect_m"] > 0.1 and val["val_final_err_m"] < 0.13:
+            vals.append(val)
+            if val["val_demo_effect_m"] > 0.1 and val["val_final_err_m"] < 0.1:
                 break
     finally:
         torch.set_num_threads(threads)
-    # Swapping in another task's demonstration moves the plan, and the plan ends nearer the demonstrated target
-    # than the mean target does (0.18 m).
-    assert val["val_demo_effect_m"] > 0.1 and val["val_final_err_m"] < 0.13, effects
-    assert val["val_final_err_m"] < 0.1, val  # predicting the mean target gives 0.18 m
+    assert val["val_demo_effect_m"] > 0.1, vals  # swapping in another task's demonstration moves the plan
+    assert val["val_final_err_m"] < 0.1, vals  # predicting the mean target gives 0.18 m
 
 
 def test_augmentation_starts_after_the_clean_warm_up():

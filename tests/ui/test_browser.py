@@ -202,14 +202,19 @@ def _click_until(page, locator, shows: str, attempts: int = 3) -> None:
     """Click until the page shows ``shows``: a click that lands while a loaded machine is still building the page
     can be lost (seen in full-suite runs, on tabs and on the Inspect tab's Open), and waiting longer on a click
     that never arrived does not help. Fails if the text never appears."""
+    _click_until_done(locator, lambda: page.get_by_text(shows).first.wait_for(timeout=30_000), attempts)
+
+
+def _click_until_done(locator, wait_done, attempts: int = 3) -> None:
+    """Click, then ``wait_done()`` (raises on timeout); click again while it times out, at most ``attempts`` times."""
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
     for attempt in range(attempts):
         _click(locator)
         try:
-            page.get_by_text(shows).first.wait_for(timeout=30_000)
+            wait_done()
             return
-        except PlaywrightTimeout:
+        except (PlaywrightTimeout, AssertionError):
             if attempt == attempts - 1:
                 raise
 
@@ -240,25 +245,13 @@ def _teleop_state(tab) -> str:
     return f"status {tab.teleop.status.content!r}, tab actions {tab.actions}, recording {tab.teleop._recording}"
 
 
-def _click_until_taken(locator, taken, what: str, state, attempts: int = 3, wait: float = 30.0) -> None:
-    """Click until the server shows it took the click (``taken()``): a click can be lost on a loaded machine
-    (``_click_until``). Re-clicking is safe for the buttons used with it (a second Stop & save is a no-op)."""
-    for attempt in range(attempts):
-        _click(locator)
-        try:
-            _wait(taken, wait, what, state)
-            return
-        except AssertionError:
-            if attempt == attempts - 1:
-                raise
-
-
 def _stop_and_save(page, tab) -> None:
-    """Click Stop & save until the panel took it (no longer recording, or saving), then wait for the store."""
+    """Click Stop & save until the panel took it (no longer recording, or saving), then wait for the store.
+    Re-clicking is safe: a Stop & save after the first one is a no-op."""
     tp = tab.teleop
-    _click_until_taken(page.get_by_role("button", name="Stop & save"),
-                       lambda: not tp.status.content.startswith("Recording"), "Stop & save to be taken",
-                       lambda: _teleop_state(tab))  # fmt: skip
+    _click_until_done(page.get_by_role("button", name="Stop & save"),
+                      lambda: _wait(lambda: not tp.status.content.startswith("Recording"), 30,
+                                    "Stop & save to be taken", lambda: _teleop_state(tab)))  # fmt: skip
     _wait(lambda: tp.status.content.startswith("Saved"), 120, "the episode to be stored", lambda: _teleop_state(tab))
 
 

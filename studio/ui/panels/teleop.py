@@ -32,6 +32,8 @@ PREVIEW_HZ = 5.0
 #: (13–50 % with no image updates); docs/ui.md.
 FRUSTUM_IMAGE_HZ = 0.2
 PREVIEW_SIZE = (120, 160)
+#: The tab action that shows the live session (``StudioTab.run``'s name for it; queued once at a time).
+SHOW_LIVE = "showing the teleop scene"
 
 
 def scene_tasks(scene: str) -> list[str]:
@@ -207,8 +209,8 @@ class TeleopPanel:
         if self.client is None or self.info is None:
             return None
         received = time.perf_counter()
-        if self.tab.mode != "teleop" and "showing the teleop scene" not in self.tab.actions:
-            self.tab.run(self.show_live, "showing the teleop scene")  # once, not once per drag event
+        if self.tab.mode != "teleop" and SHOW_LIVE not in self.tab.actions:
+            self.tab.run(self.show_live, SHOW_LIVE)  # once, not once per drag event
         seq = self.client.set_target(position, self._gripper)
         with self._pending_lock:
             self._pending[seq] = received
