@@ -96,6 +96,8 @@ class ModelConfig:
         demo_task_classes: size of the demonstration-task classifier on π's outputs at the expert frames (0: none,
             as in the paper). The trainer sets it to the number of training tasks when
             ``TrainConfig.demo_task_weight`` > 0; ``OSVIWM`` docstring.
+        demo_task_groups, demo_task_table: what that classifier names — its logits split into groups and the
+            class of each training task in each group (``demo_task``; empty: one group, task i is class i).
     """
 
     image_size: tuple[int, int] = (240, 320)
@@ -128,9 +130,17 @@ class ModelConfig:
     pool_before_wm: bool = False
     single_step: bool = False
     demo_task_classes: int = 0
+    demo_task_groups: tuple[int, ...] = ()
+    demo_task_table: tuple[tuple[int, ...], ...] = ()
 
     def __post_init__(self) -> None:
         self.image_size = tuple(int(v) for v in self.image_size)  # type: ignore[assignment]
+        self.demo_task_groups = tuple(int(v) for v in self.demo_task_groups)  # type: ignore[assignment]
+        self.demo_task_table = tuple(tuple(int(v) for v in row) for row in self.demo_task_table)  # type: ignore[assignment]
+        if self.demo_task_groups and sum(self.demo_task_groups) != self.demo_task_classes:
+            raise ValueError(
+                f"demo_task_groups {self.demo_task_groups} do not add up to demo_task_classes {self.demo_task_classes}"
+            )
         if len(self.image_size) != 2 or min(self.image_size) < 16:
             raise ValueError(f"ModelConfig.image_size must be (height, width) >= 16, got {self.image_size}")
         if not 1 <= self.encoder_stages <= 4:
@@ -185,6 +195,8 @@ class TrainConfig:
         demo_task_weight: weight of an auxiliary cross-entropy that makes π name the demonstration's task from
             its outputs at the expert frames (0 = off, the paper's loss). Not in the paper: a probe of whether
             telling π *what* was demonstrated lets it learn *where* that is in the agent's frame (session 7).
+        demo_task_labels: what that loss names: "task" (the training task) or "parts" (its object and its target,
+            each by its own classifier; tabletop scenes only). See ``demo_task``.
         sdtw_gamma, sdtw_normalize, dense_points, gripper_weight: the waypoint loss (see ``losses``).
         crop, translate, scale, hflip, vflip, brightness, contrast, saturation, hue: augmentation ranges
             (fractions of the image size for crop/translate; scale is a zoom range; flips are probabilities).
@@ -219,6 +231,7 @@ class TrainConfig:
     wm_loss: bool = True
     stop_gradient: bool = True
     demo_task_weight: float = 0.0
+    demo_task_labels: Literal["task", "parts"] = "task"
     sdtw_gamma: float = 1e-3
     sdtw_normalize: bool = False
     dense_points: int = 60
@@ -260,6 +273,8 @@ class TrainConfig:
             raise ValueError(f"mixup_min must be in (0, 1], got {self.mixup_min}")
         if self.demo_task_weight < 0:
             raise ValueError(f"demo_task_weight must be >= 0, got {self.demo_task_weight}")
+        if self.demo_task_labels not in ("task", "parts"):
+            raise ValueError(f"demo_task_labels must be 'task' or 'parts', got {self.demo_task_labels!r}")
         if self.sdtw_gamma <= 0:
             raise ValueError(f"sdtw_gamma must be positive, got {self.sdtw_gamma}")
         if not 0.0 <= self.alpha_warmup <= 1.0:

@@ -45,6 +45,7 @@ from torch.utils.data import DataLoader
 from studio.model.augment import augment_batch
 from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, expert_indices_of
 from studio.model.config import ModelConfig, RunConfig, TrainConfig
+from studio.model.demo_task import demo_task_loss, label_table
 from studio.model.losses import alpha as alpha_at
 from studio.model.losses import waypoint_errors, waypoint_loss, world_model_loss
 from studio.model.osvi_wm import OSVIWM
@@ -105,11 +106,14 @@ def _config_differences(saved: dict[str, Any], current: dict[str, Any]) -> list[
         for key in sorted(set(saved.get(section, {})) | set(current[section])):
             a = saved.get(section, {}).get(key, defaults[section].get(key))
             b = current[section].get(key)
-            if isinstance(a, list | tuple) and isinstance(b, list | tuple):
-                a, b = list(a), list(b)
+            a, b = _as_lists(a), _as_lists(b)  # JSON gives lists where the dataclass holds tuples
             if a != b and not (section == "train" and key in _RESUMABLE_CHANGES):
                 diffs.append(f"{section}.{key}: checkpoint {a!r} vs now {b!r}")
     return diffs
+
+
+def _as_lists(value: Any) -> Any:
+    return [_as_lists(v) for v in value] if isinstance(value, list | tuple) else value
 
 
 def median_path_depth(source: PairSource, samples: int = 64) -> float:
@@ -175,11 +179,12 @@ def compute_losses(
     loss = loss_sdtw
     parts = {"loss_sdtw": float(loss_sdtw.detach()), "alpha": a}
     if out.demo_task_logits is not None and cfg.demo_task_weight > 0:
-        labels = batch.expert_tasks.to(out.demo_task_logits.device)
-        loss_task = torch.nn.functional.cross_entropy(out.demo_task_logits.float(), labels)
+        loss_task, right = demo_task_loss(
+            out.demo_task_logits, batch.expert_tasks, core.cfg.demo_task_groups, core.cfg.demo_task_table
+        )
         loss = loss + cfg.demo_task_weight * loss_task
         parts["loss_task"] = float(loss_task.detach())
-        parts["task_acc"] = float((out.demo_task_logits.argmax(-1) == labels).float().mean())
+        parts["task_acc"] = float(right.float().mean())
     if out.target_pooled is not None:
         loss_wm = world_model_loss(out.pooled, out.target_pooled)
         loss = loss + a * loss_wm
@@ -333,8 +338,11 @@ def _train_loop(
         out.mkdir(parents=True, exist_ok=True)
 
     torch.manual_seed(cfg.seed)
-    if cfg.demo_task_weight > 0 and run.model.demo_task_classes == 0:
-        run.model.demo_task_classes = len(train_set.tasks)
+    if cfg.demo_task_weight > 0:  # the head follows the training tasks and the labelling
+        groups, table = label_table(train_set.tasks, cfg.demo_task_labels)
+        run.model.demo_task_classes = sum(groups)
+        run.model.demo_task_groups = groups if table else ()
+        run.model.demo_task_table = table
     model = OSVIWM(run.model).to(device)
     plan = BatchPlan(
         len(train_set),
@@ -378,14 +386,20 @@ def _train_loop(
     elif init is not None:
         start = load_checkpoint(init, device)
         saved = dict(start["config"]["model"])
-        # A demonstration-task head may be added to a checkpoint trained without one (it starts untrained).
-        new_head = not saved.get("demo_task_classes") and run.model.demo_task_classes > 0
+        # A demonstration-task head may be added to a checkpoint trained without one, or one naming other labels
+        # replaced (either starts untrained).
+        head_keys = ("demo_task_classes", "demo_task_groups", "demo_task_table")
+        current = run.to_dict()["model"]
+        new_head = run.model.demo_task_classes > 0 and any(
+            _as_lists(saved.get(k, getattr(ModelConfig(), k))) != _as_lists(current[k]) for k in head_keys
+        )
         if new_head:
-            saved["demo_task_classes"] = run.model.demo_task_classes
+            saved.update({k: current[k] for k in head_keys})
         diffs = _config_differences({"model": saved}, {"model": run.to_dict()["model"], "train": {}})
         if diffs:
             raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")
-        state = {k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()}
+        state = {k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()
+                 if not (new_head and k.startswith("demo_task_head."))}  # fmt: skip
         missing, unexpected = model.load_state_dict(state, strict=False)
         if unexpected or [k for k in missing if not (new_head and k.startswith("demo_task_head."))]:
             raise CheckpointMismatch(f"{init}: weights do not match the model (missing {missing}, unexpected "

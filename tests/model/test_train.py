@@ -383,3 +383,30 @@ def test_a_checkpoint_without_the_task_head_resumes_and_inits_a_run_that_adds_on
     trained = load_checkpoint(ckpt_path)["model"]
     assert all(torch.allclose(trained[k].float(), after["model"][k].float(), atol=1e-6)
                for k in trained if trained[k].is_floating_point() and "running" not in k)  # fmt: skip
+
+
+def test_parts_labels_give_the_head_one_group_per_part_and_replace_a_task_head_on_init(tmp_path):
+    from studio.model.train import model_from_checkpoint
+
+    def push_pairs(split="train"):
+        source = SyntheticPairs(n_tasks=3, split=split)
+        source.tasks = ["push/red-forward", "push/red-backward", "push/blue-forward"]  # what the labels come from
+        return source
+
+    whole = tiny_run_config(max_steps=2, batch_size=4, val_every=100, demo_task_weight=1.0)
+    train(whole, push_pairs(), None, tmp_path / "task", show_progress=False)
+    assert load_checkpoint(tmp_path / "task" / "last.pt")["config"]["model"]["demo_task_classes"] == 3
+    parts = whole.with_overrides(["train.demo_task_labels=parts", "train.max_steps=3", "train.val_every=3",
+                                  "train.val_batches=1"])  # fmt: skip
+    train(parts, push_pairs(), push_pairs("val"), tmp_path / "parts", show_progress=False,
+          init=tmp_path / "task" / "last.pt")  # fmt: skip
+    ckpt = load_checkpoint(tmp_path / "parts" / "last.pt")
+    model_cfg = ckpt["config"]["model"]
+    assert model_cfg["demo_task_classes"] == 4 and list(model_cfg["demo_task_groups"]) == [2, 2]
+    assert [list(r) for r in model_cfg["demo_task_table"]] == [[0, 0], [0, 1], [1, 0]]
+    assert model_from_checkpoint(ckpt).demo_task_head[-1].out_features == 4
+    rec = records(tmp_path / "parts")
+    assert all(0 < r["loss_task"] < 10 for r in rec if "loss_task" in r)
+    assert "val_task_acc" in [r for r in rec if "val_loss" in r][-1]
+    again = parts.with_overrides(["train.max_steps=4"])  # resumes with its own head
+    assert train(again, push_pairs(), None, tmp_path / "parts", show_progress=False).step == 4
