@@ -56,6 +56,21 @@ def label_table(tasks: Sequence[str], labels: str) -> tuple[tuple[int, ...], tup
     return (len(objects), len(targets)), tuple((objects.index(t.obj), targets.index(t.target)) for t in found)
 
 
+def class_names(tasks: Sequence[str], table: Sequence[Sequence[int]]) -> list[list[str]]:
+    """Readable names of each group's classes: the training tasks' short names (``"cube->red"``) for whole-task
+    labels, the objects and the targets for parts (what ``label_table`` numbered)."""
+    if not table:
+        return [[name.partition("/")[2] or name for name in tasks]]
+    from studio.sim.tasks import get_task
+
+    names: list[dict[int, str]] = [{} for _ in table[0]]
+    for name, row in zip(tasks, table):
+        task = get_task(name)
+        for g, (c, part) in enumerate(zip(row, (task.obj, task.target))):
+            names[g][c] = part
+    return [[group[c] for c in range(len(group))] for group in names]
+
+
 def demo_task_loss(
     logits: torch.Tensor, expert_tasks: torch.Tensor, groups: Sequence[int], table: Sequence[Sequence[int]]
 ) -> tuple[torch.Tensor, torch.Tensor]:

@@ -15,6 +15,9 @@ open one after it). Reported, per task and over all:
 * ``scene_dependence`` — one demonstration planned against every scene: the spread (std, xy) of the grasp point
   divided by the spread of the task's object over those scenes. 1 when the grasp follows the object, 0 when the
   plan ignores the agent's frame (what session 5 measured by hand, docs/results.md).
+* ``named`` — for a checkpoint trained with the demonstration-task loss (``demo_task``), what its head calls the
+  demonstrations used, counted: a training task's name, or the object and the target. On a held-out task it
+  shows whether the demonstration was read as its own parts or as the nearest training task.
 
 ``--mirror`` flips the demonstrations left–right first: our tasks are named by colour, so a mirrored video still
 demonstrates its task, but copying its grasp and release places becomes wrong (``train.expert_hflip``). The
@@ -118,6 +121,7 @@ def measure(args: argparse.Namespace) -> dict:
                 return planner.plan(frames, agent.frames[0], cam.K, cam.T_world_cam).waypoints_world
 
             rows: dict[str, list] = {"right": [], "grasp": [], "demo": [], "release": []}
+            named: dict[str, int] = {}
             fixed_grasps, fixed_objects = [], []
             for meta in agents:
                 agent = store.load(meta.id)
@@ -125,7 +129,10 @@ def measure(args: argparse.Namespace) -> dict:
                 target = objects[list(meta.object_names).index(obj)]
                 expert_meta = experts[int(rng.integers(len(experts)))]
                 grasp, release = grasp_and_release(plan(expert_meta, agent))
-                _, demo_object = _demonstration(store, expert_meta, obj, args.mirror, demos)
+                frames, demo_object = _demonstration(store, expert_meta, obj, args.mirror, demos)
+                name = planner.name_demonstration(frames)
+                if name is not None:
+                    named[", ".join(name)] = named.get(", ".join(name), 0) + 1
                 if grasp is None:
                     rows["right"].append(False)
                     rows["grasp"].append(None)
@@ -154,6 +161,7 @@ def measure(args: argparse.Namespace) -> dict:
                 "grasp_to_demo_object_m": _median(rows["demo"]),
                 "release_err_m": _median(rows["release"]),
                 "scene_dependence": dependence,
+                **({"named": dict(sorted(named.items(), key=lambda kv: -kv[1]))} if named else {}),
             }
             for key in ("right", "grasp", "demo", "release"):
                 every[key] += rows[key]

@@ -93,6 +93,7 @@ class Planner:
         self.model = copy.deepcopy(model).to(self.device).eval()
         self.model.encoder = self.model.encoder.fused_for_inference()
         self.cfg = model.cfg
+        self.tasks: list[str] = []  # the training tasks (from the checkpoint), which the task head names
         self._context_key: str | None = None
         self._context: KVCache | None = None
 
@@ -102,10 +103,41 @@ class Planner:
     ) -> Planner:
         from studio.model.train import load_checkpoint, model_from_checkpoint
 
-        return cls(model_from_checkpoint(load_checkpoint(checkpoint, "cpu")), device, precision)
+        ckpt = load_checkpoint(checkpoint, "cpu")
+        planner = cls(model_from_checkpoint(ckpt), device, precision)
+        planner.tasks = list(ckpt.get("tasks") or [])
+        return planner
 
     def clear_cache(self) -> None:
         self._context_key, self._context = None, None
+
+    @torch.inference_mode()
+    def name_demonstration(self, expert_frames: np.ndarray | torch.Tensor) -> tuple[str, ...] | None:
+        """What the demonstration-task head (``demo_task``; not in the paper) calls this demonstration: a training
+        task's name, or one name per part (object, target). None when the model has no such head."""
+        from studio.model.demo_task import class_names
+
+        model = self.model
+        if model.demo_task_head is None or not self.tasks:
+            return None
+        expert = self._expert_input(expert_frames)
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            encoded = model.encode(expert).float()
+        _, outputs = model.action_model.context_and_outputs(encoded.unsqueeze(0))
+        logits = model.demo_task_head(outputs.mean(dim=(1, 3, 4) if outputs.dim() == 5 else (1,)))[0]
+        groups = list(self.cfg.demo_task_groups or (self.cfg.demo_task_classes,))
+        names = class_names(self.tasks, self.cfg.demo_task_table)
+        return tuple(names[g][int(part.argmax())] for g, part in enumerate(logits.split(groups)))
+
+    def _expert_input(self, expert_frames: np.ndarray | torch.Tensor) -> torch.Tensor:
+        """The demonstration as the model takes it: N evenly spaced frames at the model's size, on the device."""
+        expert = _chw(expert_frames, "expert_frames", video=True)
+        n = self.cfg.n_expert_frames
+        if expert.shape[0] < 1:
+            raise ValueError("expert_frames is empty")
+        if expert.shape[0] != n:
+            expert = expert[np.round(np.linspace(0, expert.shape[0] - 1, n)).astype(int)]
+        return _resize(expert, tuple(self.cfg.image_size)).to(self.device)
 
     @torch.inference_mode()
     def plan(
@@ -117,20 +149,15 @@ class Planner:
     ) -> PlanResult:
         """Plan the 5 waypoints (see the module docstring)."""
         t0 = time.perf_counter()
-        expert = _chw(expert_frames, "expert_frames", video=True)
+        expert = self._expert_input(expert_frames)
         agent = _chw(agent_frame, "agent_frame", video=False)
         K = np.asarray(K, dtype=np.float64)
         T = np.asarray(T_world_cam, dtype=np.float64)
         if K.shape != (3, 3) or T.shape != (4, 4):
             raise ValueError(f"K must be (3, 3) and T_world_cam (4, 4), got {K.shape} and {T.shape}")
         n = self.cfg.n_expert_frames
-        if expert.shape[0] < 1:
-            raise ValueError("expert_frames is empty")
-        if expert.shape[0] != n:
-            expert = expert[np.round(np.linspace(0, expert.shape[0] - 1, n)).astype(int)]
         size = tuple(self.cfg.image_size)
         K_model = resize_intrinsics(torch.as_tensor(K), tuple(agent.shape[-2:]), size)
-        expert = _resize(expert, size).to(self.device)
         agent = _resize(agent, size).to(self.device)
         key = hashlib.sha1(expert.cpu().numpy().tobytes()).hexdigest()
         t1 = time.perf_counter()

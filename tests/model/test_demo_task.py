@@ -57,3 +57,11 @@ def test_the_parts_loss_is_the_mean_over_groups_and_right_needs_every_group():
     assert right.tolist() == [True, False]  # the second names the object but not the target
     with pytest.raises(ValueError, match="need 5"):
         demo_task_loss(logits, tasks, (2, 3), table)
+
+
+def test_class_names_read_the_classes_back():
+    from studio.model.demo_task import class_names
+
+    push = load_split("push").tasks("train")
+    assert class_names(push, label_table(push, "parts")[1]) == [["red", "blue"], ["forward", "backward"]]
+    assert class_names(push, ()) == [["red-forward", "red-backward", "blue-forward"]]

@@ -51,6 +51,9 @@ class _FixedPlanner:
                         [0.1, 0.2, 1.0, 0]])  # fmt: skip
         return type("Plan", (), {"waypoints_world": wps})()
 
+    def name_demonstration(self, expert_frames):
+        return None  # no demonstration-task head
+
 
 def test_a_plan_that_ignores_the_scene_has_zero_scene_dependence(store, monkeypatch):
     from studio.model import planner as planner_module
@@ -61,6 +64,7 @@ def test_a_plan_that_ignores_the_scene_has_zero_scene_dependence(store, monkeypa
     assert row["scenes"] == 3 and row["scene_dependence"] == 0.0
     assert result["chance_right_object"] == 0.25 and 0.0 <= result["right_object"] <= 1.0
     assert row["grasp_err_m"] > 0 and row["release_err_m"] > 0
+    assert "named" not in row
 
 
 def test_the_shipped_policy_is_measured_on_plain_and_mirrored_demonstrations(store):
@@ -72,6 +76,8 @@ def test_the_shipped_policy_is_measured_on_plain_and_mirrored_demonstrations(sto
         row = result["tasks"][TASK]
         assert row["scenes"] == 3 and np.isfinite(row["grasp_err_m"]) and row["scene_dependence"] is not None
     assert mirrored["mirror"] and not plain["mirror"]
+    named = plain["tasks"][TASK]["named"]  # its head names whole training tasks; bar->blue is not one of them
+    assert sum(named.values()) == 3 and all("->" in name and name != "bar->blue" for name in named)
     assert plain["grasp_to_demo_object_m"] != mirrored["grasp_to_demo_object_m"]
 
 

@@ -95,6 +95,19 @@ def test_load_from_a_training_checkpoint(tmp_path, sample):
     assert planner.plan(
         sample["expert_frames"], sample["agent_frames"][0], sample["K"], np.eye(4)
     ).waypoints_world.shape == (5, 4)
+    assert planner.name_demonstration(sample["expert_frames"]) is None  # trained without a task head
+
+
+def test_the_task_head_names_a_demonstration_by_its_parts(tmp_path, sample):
+    source = SyntheticPairs(n_tasks=3)
+    source.tasks = ["push/red-forward", "push/red-backward", "push/blue-forward"]
+    run = tiny_run_config(max_steps=1, batch_size=4, val_every=100, demo_task_weight=1.0, demo_task_labels="parts")
+    train(run, source, None, tmp_path, show_progress=False)
+    planner = Planner.load(tmp_path / "last.pt")
+    box, direction = planner.name_demonstration(sample["expert_frames"])
+    assert box in ("red", "blue") and direction in ("forward", "backward")
+    longer = np.concatenate([sample["expert_frames"]] * 2)  # resampled to N frames, as for planning
+    assert planner.name_demonstration(longer) == (box, direction)
 
 
 def test_bfloat16_planning_stays_close_to_float32(sample):
