@@ -51,8 +51,9 @@ def test_grasp_correction_centres_on_an_offset_object(env_factory):
     ctl = WaypointController(env, on_event=lambda k, i: events.append((k, i)))
     above = obj + np.array([0.02, 0.0, 0.12])  # 2 cm off in x
     ctl.move_to(above, 0.0)
-    corrected = ctl.correct_grasp(above)
+    corrected, top = ctl.correct_grasp(above)
     assert np.linalg.norm(corrected[:2] - obj[:2]) < 0.005
+    assert abs(top - 2 * obj[2]) < 0.01  # the cylinder's top, seen from above (it stands on the table)
     assert np.linalg.norm(env.ee_pos[:2] - obj[:2]) < 0.006
     assert sum(1 for k, i in events if k == "grasp_correction" and i["found"]) == 3
 
@@ -79,3 +80,14 @@ def test_a_plan_that_closes_after_the_object_still_picks_and_places(env_factory)
         [*(place + 0.08 * up), 0],  # opened on the way up
     ])  # fmt: skip
     assert WaypointController(env).execute(shifted).success
+
+
+@pytest.mark.parametrize("correct_height", [True, False])
+def test_a_grasp_planned_too_high_is_lowered_to_the_object_only_with_height_correction(env_factory, correct_height):
+    env = env_factory("pick_place", "panda")
+    env.reset("pick_place/bar->blue", 4)
+    scripted = expert_waypoints(env)
+    high = scripted.copy()
+    high[0, 2] += 0.03  # the model's typical miss on the flat bar: the grasp 2-3 cm above the scripted one
+    cfg = ControllerConfig(correct_grasp_height=correct_height)
+    assert WaypointController(env, cfg).execute(high).success == correct_height
