@@ -52,6 +52,8 @@ Ablations (paper section 4, "ablations"), all switches of ``ModelConfig``/``Trai
 
 * ``ModelConfig.world_model=False`` — no world model: the action model's single latent action for the first
   agent state is pooled and decoded (a one-element trajectory); there is then no world-model loss.
+  Measured on pick-and-place with the ``cpu`` recipe (docs/results.md, session 10): 99.5 % held-out against the
+  full model's 47 %, the reverse of the paper's ordering at our budget; shipped as ``pick-place-no-world-model``.
 * ``TrainConfig.wm_loss=False`` — the world model is kept but 𝓛_wm is not applied (future frames not encoded).
 * ``TrainConfig.stop_gradient=False`` — 𝓛_wm back-propagates into the encoder through the targets as well.
 * ``ModelConfig.pool_before_wm=True`` — spatial-softmax pooling is applied to the encoder states before π and 𝒲,
