@@ -34,25 +34,8 @@ def label_table(tasks: Sequence[str], labels: str) -> tuple[tuple[int, ...], tup
         return (len(tasks),), ()
     if labels != "parts":
         raise ValueError(f"unknown demonstration-task labelling {labels!r}; choose from {', '.join(LABELLINGS)}")
-    from studio.sim.tasks import get_task  # the registry imports the scenes (and MuJoCo): only when needed
-
-    found = []
-    for name in tasks:
-        try:
-            found.append(get_task(name))
-        except (KeyError, ValueError):
-            found.append(None)
-    without = [name for name, task in zip(tasks, found) if not hasattr(task, "obj")]
-    if without:
-        raise ValueError(
-            f"demonstration-task labels 'parts' need tasks made of an object and a target; {without[0]} is not "
-            "(use train.demo_task_labels=task)"
-        )
-    objects = list(dict.fromkeys(t.obj for t in found))
-    targets = list(dict.fromkeys(t.target for t in found))
-    for kind, names in (("object", objects), ("target", targets)):
-        if len(names) < 2:
-            raise ValueError(f"demonstration-task labels 'parts': the training tasks have one {kind} only ({names[0]})")
+    found = [_task(name) for name in tasks]
+    objects, targets = _parts(found)
     return (len(objects), len(targets)), tuple((objects.index(t.obj), targets.index(t.target)) for t in found)
 
 
@@ -61,14 +44,32 @@ def class_names(tasks: Sequence[str], table: Sequence[Sequence[int]]) -> list[li
     labels, the objects and the targets for parts (what ``label_table`` numbered)."""
     if not table:
         return [[name.partition("/")[2] or name for name in tasks]]
-    from studio.sim.tasks import get_task
+    return list(_parts([_task(name) for name in tasks]))
 
-    names: list[dict[int, str]] = [{} for _ in table[0]]
-    for name, row in zip(tasks, table):
+
+def _task(name: str):
+    from studio.sim.tasks import get_task  # the registry imports the scenes (and MuJoCo): only when needed
+
+    try:
         task = get_task(name)
-        for g, (c, part) in enumerate(zip(row, (task.obj, task.target))):
-            names[g][c] = part
-    return [[group[c] for c in range(len(group))] for group in names]
+    except (KeyError, ValueError):
+        task = None
+    if not hasattr(task, "obj"):
+        raise ValueError(
+            f"demonstration-task labels 'parts' need tasks made of an object and a target; {name} is not "
+            "(use train.demo_task_labels=task)"
+        )
+    return task
+
+
+def _parts(found: Sequence) -> tuple[list[str], list[str]]:
+    """The objects and the targets of the training tasks, in order of first appearance (the classes' order)."""
+    objects = list(dict.fromkeys(t.obj for t in found))
+    targets = list(dict.fromkeys(t.target for t in found))
+    for kind, names in (("object", objects), ("target", targets)):
+        if len(names) < 2:
+            raise ValueError(f"demonstration-task labels 'parts': the training tasks have one {kind} only ({names[0]})")
+    return objects, targets
 
 
 def demo_task_loss(

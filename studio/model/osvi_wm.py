@@ -156,6 +156,14 @@ class OSVIWM(nn.Module):
         summary = self.temporal_pool(pooled)
         return self.head(summary).reshape(pooled.shape[0], self.cfg.waypoint_rows, 4)
 
+    def demo_task_logits(self, expert_outputs: torch.Tensor) -> torch.Tensor | None:
+        """The demonstration-task head on π's outputs at the expert frames (U, N, …), averaged over frames (and
+        cells); None without the head."""
+        if self.demo_task_head is None:
+            return None
+        dims = (1, 3, 4) if expert_outputs.dim() == 5 else (1,)
+        return self.demo_task_head(expert_outputs.mean(dim=dims))
+
     # ---------------------------------------------------------------- forward
     def forward(
         self,
@@ -199,10 +207,7 @@ class OSVIWM(nn.Module):
                     )
             target_pooled = self.pool(future).reshape(b, len(target_idx), self.pooled_dim)
         cache, expert_outputs = self.action_model.context_and_outputs(expert_states)
-        logits = None
-        if self.demo_task_head is not None:  # mean over frames (and cells) of π's outputs at the expert frames
-            dims = (1, 3, 4) if expert_outputs.dim() == 5 else (1,)
-            logits = self.demo_task_head(expert_outputs.mean(dim=dims))
+        logits = self.demo_task_logits(expert_outputs)
         actions, states = self.rollout_from_context(_pair_context(cache, expert_ids, u, b), agent_state)
         pooled = self.pool(states)
         return ModelOutput(self.predict_waypoints(pooled), actions, states, pooled, target_pooled, logits)

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections import Counter
 
 import numpy as np
 
@@ -121,7 +122,7 @@ def measure(args: argparse.Namespace) -> dict:
                 return planner.plan(frames, agent.frames[0], cam.K, cam.T_world_cam).waypoints_world
 
             rows: dict[str, list] = {"right": [], "grasp": [], "demo": [], "release": []}
-            named: dict[str, int] = {}
+            named: Counter[str] = Counter()
             fixed_grasps, fixed_objects = [], []
             for meta in agents:
                 agent = store.load(meta.id)
@@ -132,7 +133,7 @@ def measure(args: argparse.Namespace) -> dict:
                 frames, demo_object = _demonstration(store, expert_meta, obj, args.mirror, demos)
                 name = planner.name_demonstration(frames)
                 if name is not None:
-                    named[", ".join(name)] = named.get(", ".join(name), 0) + 1
+                    named[", ".join(name)] += 1
                 if grasp is None:
                     rows["right"].append(False)
                     rows["grasp"].append(None)
@@ -161,7 +162,7 @@ def measure(args: argparse.Namespace) -> dict:
                 "grasp_to_demo_object_m": _median(rows["demo"]),
                 "release_err_m": _median(rows["release"]),
                 "scene_dependence": dependence,
-                **({"named": dict(sorted(named.items(), key=lambda kv: -kv[1]))} if named else {}),
+                **({"named": dict(named.most_common())} if named else {}),
             }
             for key in ("right", "grasp", "demo", "release"):
                 every[key] += rows[key]

@@ -94,6 +94,7 @@ class Planner:
         self.model.encoder = self.model.encoder.fused_for_inference()
         self.cfg = model.cfg
         self.tasks: list[str] = []  # the training tasks (from the checkpoint), which the task head names
+        self._class_names: list[list[str]] | None = None
         self._context_key: str | None = None
         self._context: KVCache | None = None
 
@@ -120,14 +121,15 @@ class Planner:
         model = self.model
         if model.demo_task_head is None or not self.tasks:
             return None
+        if self._class_names is None:
+            self._class_names = class_names(self.tasks, self.cfg.demo_task_table)
         expert = self._expert_input(expert_frames)
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
             encoded = model.encode(expert).float()
         _, outputs = model.action_model.context_and_outputs(encoded.unsqueeze(0))
-        logits = model.demo_task_head(outputs.mean(dim=(1, 3, 4) if outputs.dim() == 5 else (1,)))[0]
+        logits = model.demo_task_logits(outputs)[0]
         groups = list(self.cfg.demo_task_groups or (self.cfg.demo_task_classes,))
-        names = class_names(self.tasks, self.cfg.demo_task_table)
-        return tuple(names[g][int(part.argmax())] for g, part in enumerate(logits.split(groups)))
+        return tuple(self._class_names[g][int(part.argmax())] for g, part in enumerate(logits.split(groups)))
 
     def _expert_input(self, expert_frames: np.ndarray | torch.Tensor) -> torch.Tensor:
         """The demonstration as the model takes it: N evenly spaced frames at the model's size, on the device."""

@@ -395,7 +395,7 @@ def _train_loop(
         )
         if new_head:
             saved.update({k: current[k] for k in head_keys})
-        diffs = _config_differences({"model": saved}, {"model": run.to_dict()["model"], "train": {}})
+        diffs = _config_differences({"model": saved}, {"model": current, "train": {}})
         if diffs:
             raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")
         state = {k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()
