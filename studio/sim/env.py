@@ -73,6 +73,8 @@ class SimEnv:
         self.seed: int | None = None
         self.layout: scenes.Layout | None = None
         self.initial_objects: dict[str, np.ndarray] = {}
+        # Stages reached at some tick of the episode (the breakdown counts what happened, not just the end state).
+        self._ever = {"reached": False, "grasped": False}
         self.gripper_cmd = 0.0
         self.target = np.zeros(3)
         self.steps = 0
@@ -108,6 +110,7 @@ class SimEnv:
         self.steps = 0
         self.target = self.ee_pos.copy()
         self.initial_objects = {o: p[:3].copy() for o, p in self.object_poses().items()}
+        self._ever = {"reached": False, "grasped": False}
 
     def step(self, target_pos: np.ndarray, gripper: float) -> None:
         """One control tick: move the grasp site towards ``target_pos`` (clamped to the workspace) with
@@ -124,6 +127,8 @@ class SimEnv:
         self.data.ctrl[self._finger_act] = self.robot_info.finger_ctrl(self.gripper_cmd)
         mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
         self.steps += 1
+        if not self._ever["grasped"]:  # once grasped, reached is recorded too: nothing left to track
+            self._stages_now()
 
     # ------------------------------------------------------------------ state
     @property
@@ -156,10 +161,18 @@ class SimEnv:
                 return name
         return None
 
-    def stages(self) -> dict[str, bool]:
-        """The task's breakdown now: reached, grasped, placed."""
+    def _stages_now(self) -> dict[str, bool]:
         objects = {o: p[:3] for o, p in self.object_poses().items()}
-        return self.task.stages(objects, self.initial_objects, self.layout, self.ee_pos, self.held_object())
+        now = self.task.stages(objects, self.initial_objects, self.layout, self.ee_pos, self.held_object())
+        for k in self._ever:
+            self._ever[k] = self._ever[k] or now[k]
+        return now
+
+    def stages(self) -> dict[str, bool]:
+        """The task's breakdown: ``reached`` and ``grasped`` if that happened at any tick of the episode (an
+        object carried to the wrong place and let go was still grasped), ``placed`` (= success) now."""
+        now = self._stages_now()
+        return {"reached": self._ever["reached"], "grasped": self._ever["grasped"], "placed": now["placed"]}
 
     def success(self) -> bool:
         return self.stages()["placed"]

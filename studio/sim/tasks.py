@@ -94,7 +94,10 @@ class Task:
             t = layout.target_pos[self.target]
             in_zone = bool(np.all(np.abs(p[:2] - t) < TARGET_HALF) and p[2] < 0.06)
             placed = in_zone and grasped != self.obj
-            reached = bool(np.linalg.norm(ee_pos[:2] - p[:2]) < 0.03) or grasped == self.obj or placed
+            # Reached: the grasp site within 3 cm of the object across and at most 6 cm above its centre (the
+            # arm passing high over it on the way elsewhere does not count).
+            near = bool(np.linalg.norm(ee_pos[:2] - p[:2]) < 0.03 and ee_pos[2] - p[2] < 0.06)
+            reached = near or grasped == self.obj or placed
             return {"reached": reached, "grasped": grasped == self.obj or placed, "placed": placed}
         sign = 1.0 if self.target == "forward" else -1.0
         moved = sign * (p[1] - initial[self.obj][1])

@@ -74,3 +74,37 @@ def test_push_success_predicate(env_factory):
     env.data.qpos[a + 1] += 0.12  # moved the wrong way
     mujoco.mj_forward(env.model, env.data)
     assert not env.success()
+
+
+def test_breakdown_counts_a_grasp_that_happened_even_if_the_object_was_let_go_elsewhere(env_factory):
+    """The paper's breakdown (reached, grasped, placed) records what happened during the episode: an object
+    carried to the wrong spot and released was grasped — it fails at the place stage, not at the grasp."""
+    from studio.backend.rollout import failure_stage
+    from studio.sim.experts import expert_waypoints
+    from studio.sim.waypoints import ControllerConfig, WaypointController
+
+    env = env_factory("pick_place", "sawyer")
+    env.reset("pick_place/cube->green", 3)
+    wps = expert_waypoints(env)
+    wps[2:, 1] -= 0.12  # carry it towards the robot instead of into the zone, and let go there
+    WaypointController(env, ControllerConfig(grasp_correction=False)).execute(wps)
+    assert env.held_object() is None and not env.success()
+    assert env.stages() == {"reached": True, "grasped": True, "placed": False}
+    assert failure_stage(env.stages()) == "place"
+    # A new episode forgets the last one's stages.
+    env.reset("pick_place/cube->green", 3)
+    assert env.stages() == {"reached": False, "grasped": False, "placed": False}
+
+
+def test_passing_high_over_the_object_is_not_reaching_it(env_factory):
+    from studio.sim.waypoints import ControllerConfig, WaypointController
+
+    env = env_factory("pick_place", "sawyer")
+    env.reset("pick_place/cube->green", 3)
+    cube = env.object_poses()["cube"][:3]
+    controller = WaypointController(env, ControllerConfig(grasp_correction=False))
+    controller.move_to(np.array([cube[0], cube[1], 0.2]), 0.0)
+    assert not env.stages()["reached"]
+    controller.move_to(np.array([cube[0], cube[1], cube[2] + 0.03]), 0.0)
+    controller.move_to(np.array([cube[0], cube[1], 0.2]), 0.0)
+    assert env.stages() == {"reached": True, "grasped": False, "placed": False}
