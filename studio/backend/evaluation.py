@@ -19,7 +19,7 @@ import sys
 import time
 import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -51,6 +51,9 @@ class RolloutSummary:
     replans: int
     planning_time_s: float
     duration_s: float
+    # Per attempt: the breakdown after it and its planning time (``with_budget`` derives smaller budgets).
+    attempt_stages: list[dict[str, bool]] = field(default_factory=list)
+    attempt_planning_s: list[float] = field(default_factory=list)
 
 
 def resolve_tasks(spec: str, scene: str) -> list[str]:
@@ -142,7 +145,8 @@ def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None,
     rollout_id = record.id
     return RolloutSummary(rollout_id, job.task, job.index, job.env_seed, expert_id, out.success,
                           out.stages["reached"], out.stages["grasped"], out.stages["placed"], out.failure_stage,
-                          out.replans, out.planning_time_s, out.duration_s)
+                          out.replans, out.planning_time_s, out.duration_s, out.attempt_stages,
+                          [p.planning_time_s for p in out.plans])  # fmt: skip
 
 
 def _run_chunk(jobs: list[EvalJob], replan: int, eval_id: str, checkpoint_id: str | None, keep: bool):
@@ -171,6 +175,32 @@ def summarise(rows: list[RolloutSummary]) -> dict:
         "rollouts": len(rows),
         "mean_planning_ms": 1000 * float(np.mean([r.planning_time_s for r in rows])) if rows else 0.0,
     }
+
+
+def with_budget(report: dict, replan: int) -> dict:
+    """The report ``report`` (evaluated with a larger re-plan budget) would have been with ``replan`` re-plans.
+
+    Exact, not an estimate: a rollout is deterministic for its seed, and a re-plan happens only after an attempt
+    failed inside the same episode, so a budget of k replays the first k + 1 attempts of a larger budget's
+    rollout — its outcome is the breakdown recorded after attempt k + 1. (The wall time is the larger run's.)
+    """
+    from studio.backend.rollout import failure_stage
+
+    if replan > report["replan"]:
+        raise ValueError(f"cannot derive {replan} re-plans from an evaluation with {report['replan']}")
+    rows = []
+    for r in (RolloutSummary(**row) for row in report["rows"]):
+        if len(r.attempt_stages) > replan + 1:  # it used more attempts than the smaller budget allows
+            stages, times = r.attempt_stages[replan], r.attempt_planning_s[: replan + 1]
+            r = replace(r, success=stages["placed"], reached=stages["reached"], grasped=stages["grasped"],
+                        placed=stages["placed"], failure_stage=failure_stage(stages), replans=replan,
+                        planning_time_s=float(np.mean(times)), attempt_stages=r.attempt_stages[: replan + 1],
+                        attempt_planning_s=times)  # fmt: skip
+        rows.append(r)
+    derived = summarise(rows)
+    keep = {k: v for k, v in report.items() if k not in derived}
+    return {**keep, **derived, "replan": replan, "derived_from_replan": report["replan"],
+            "rows": [asdict(r) for r in rows]}
 
 
 def default_robot(scene: str) -> str:

@@ -65,6 +65,8 @@ class RolloutOutcome:
     recording: Recording
     duration_s: float
     events: list[tuple[str, dict]] = field(default_factory=list)
+    # The breakdown after each attempt (plan + execution): the outcome a smaller re-plan budget would have had.
+    attempt_stages: list[dict[str, bool]] = field(default_factory=list)
 
     @property
     def replans(self) -> int:
@@ -160,6 +162,7 @@ def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, ta
         cfg.grasp_correction = False  # grasp correction centres over objects: only meaningful for grasps
     controller = WaypointController(env, cfg, on_tick=tick, on_event=event)
     plans: list[PlanRecord] = []
+    attempt_stages: list[dict[str, bool]] = []
     for attempt in range(replans + 1):
         if attempt:
             event("replanning", {"attempt": attempt, "of": replans})
@@ -176,7 +179,8 @@ def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, ta
             pooled_states=getattr(result, "pooled_states", None)))
         event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
         controller.execute(wps)
-        if env.success() or controller.cancelled:
+        attempt_stages.append({k: bool(v) for k, v in env.stages().items()})
+        if attempt_stages[-1]["placed"] or controller.cancelled:
             break
     stages = {k: bool(v) for k, v in env.stages().items()}
     outcome_stage = "cancelled" if controller.cancelled and not stages["placed"] else failure_stage(stages)
@@ -184,7 +188,7 @@ def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, ta
     recording = recorder.finish(n_frames=n_frames, success=stages["placed"])
     return RolloutOutcome(task=task, seed=int(seed), robot=env.robot, success=stages["placed"], stages=stages,
                           failure_stage=outcome_stage, plans=plans, recording=recording,
-                          duration_s=time.perf_counter() - started, events=events)
+                          duration_s=time.perf_counter() - started, events=events, attempt_stages=attempt_stages)
 
 
 def store_rollout(store, out: RolloutOutcome, *, expert_episode_id: str | None, checkpoint_id: str | None,

@@ -50,6 +50,9 @@ def test_replanning_stays_in_the_same_episode(env):
     planner = MissThenOracle(env)
     out = run_rollout(env, planner, frames, "pick_place/bar->blue", 5, replans=2)
     assert out.success and out.replans == 1
+    # The breakdown after each attempt: the first missed everything, the second placed the bar.
+    assert out.attempt_stages == [{"reached": False, "grasped": False, "placed": False},
+                                  {"reached": True, "grasped": True, "placed": True}]  # fmt: skip
     # The second plan was made mid-episode: the tick counter kept running, no reset in between.
     assert planner.seen_steps[0] == 0 and planner.seen_steps[1] > 0
     assert out.plans[1].start_tick == planner.seen_steps[1]
@@ -130,6 +133,27 @@ def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
         assert record.path == str(ck.resolve()) and record.step == 7
     with pytest.raises(FileNotFoundError, match="no checkpoint file"):
         evaluate(str(tmp_path / "missing.pt"), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False)
+
+
+def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_path):
+    """`with_budget` gives exactly what evaluating with fewer re-plans gives (same seeds, same episodes)."""
+    from studio.backend.evaluation import with_budget
+
+    root = tmp_path / "data"
+    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue"], episodes=1,
+                          data_dir=str(root), progress=False, image_size=(120, 160)))
+    ck = str(_tiny_checkpoint(tmp_path / "run" / "best.pt"))
+    two = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=2, data_dir=root, progress=False)
+    zero = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=0, data_dir=root, progress=False)
+    assert max(r["replans"] for r in two["rows"]) == 2  # the untrained policy fails and re-plans
+    derived = with_budget(two, 0)
+    fields = ("task", "index", "seed", "expert_episode_id", "success", "reached", "grasped", "placed",
+              "failure_stage", "replans", "attempt_stages")  # fmt: skip
+    assert [{k: r[k] for k in fields} for r in derived["rows"]] == [{k: r[k] for k in fields} for r in zero["rows"]]
+    assert derived["replan"] == 0 and derived["derived_from_replan"] == 2 and derived["success"] == zero["success"]
+    assert with_budget(two, 2)["rows"] == two["rows"]
+    with pytest.raises(ValueError, match="cannot derive"):
+        with_budget(zero, 1)
 
 
 def test_results_command_writes_a_table_of_held_out_success(tmp_path, capsys):
