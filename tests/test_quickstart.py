@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import pytest
 
 from studio.cli import main
 from studio.model.train import load_checkpoint
+from studio.quickstart import VARIANTS, add_arguments, schedule
 
 pytestmark = pytest.mark.timeout(900)
 
 
 def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, capsys):
     args = ["quickstart", "--data-dir", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--episodes", "2",
-            "--steps", "2", "--refine-steps", "1", "--eval-episodes", "1", "--workers", "1", "--set", "train.batch_size=4"]  # fmt: skip
+            "--steps", "2", "--refine-steps", "1", "--eval-episodes", "1", "--workers", "1", "--variant", "no-world-model",
+            "--set", "train.batch_size=4"]  # fmt: skip
     assert main(args) == 0
     summary = json.loads((tmp_path / "run" / "quickstart.json").read_text())
     assert set(summary["stage_wall_s"]) == {"collect", "train", "refine", "eval"}
@@ -27,6 +30,9 @@ def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, 
     assert refine_run["init"] == str(tmp_path / "run" / "base" / "last.pt")
     assert base["config"]["train"]["expert_hflip"] == 0.5 and refined["config"]["train"]["alpha_warmup"] == 0
     assert refined["config"]["train"]["demo_task_weight"] == 1.0 and refined["config"]["train"]["seed"] == 1
+    # Both stages train the chosen variant.
+    assert base["config"]["model"]["world_model"] is False and refined["config"]["model"]["world_model"] is False
+    assert summary["variant"] == "no-world-model"
     assert summary["rollouts"] == 2 and set(summary["tasks"]) == {"pick_place/bar->blue", "pick_place/bar->yellow"}
     assert 0.0 <= summary["held_out_success"] <= 1.0
     out = capsys.readouterr().out
@@ -35,3 +41,14 @@ def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, 
     assert main(args) == 0
     again = json.loads((tmp_path / "run" / "quickstart.json").read_text())
     assert again["stage_wall_s"]["collect"] < summary["stage_wall_s"]["collect"]
+
+
+def test_quickstart_trains_the_full_model_unless_told_otherwise():
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert parser.parse_args([]).variant == "osvi-wm" and VARIANTS["osvi-wm"] == ()
+    # Each variant brings its own schedule unless the steps are given.
+    assert schedule("osvi-wm", None, None) == (1000, 700) and schedule("no-world-model", None, None) == (1600, 1100)
+    assert schedule("no-world-model", 5, 0) == (5, 0)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--variant", "no-such-model"])
