@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine-steps", type=int, default=None,
                         help="steps of the second schedule from the first stage's weights (0: skip; default: the variant's)")  # fmt: skip
     parser.add_argument("--decoder-steps", type=int, default=0, help="latent decoder steps (0: skip)")
-    parser.add_argument("--eval-episodes", type=int, default=50, help="rollouts per held-out task")
+    parser.add_argument("--eval-episodes", type=int, default=100, help="rollouts per held-out task")
     parser.add_argument("--replan", type=int, default=0, help="re-plans allowed per evaluation rollout")
     parser.add_argument("--seed", type=int, default=0, help="seed of collection, training and evaluation")
     parser.add_argument("--variant", choices=sorted(VARIANTS), default="osvi-wm",
