@@ -79,9 +79,9 @@ def run(args: argparse.Namespace) -> int:
 
     tasks = resolve_tasks("held-out", args.scene)
     reports: list[tuple[str, int, dict]] = []
+    # One evaluation per policy at the largest budget; the smaller budgets are its rollouts cut after fewer attempts.
+    most = max(args.replan)
     for name, checkpoint in args.policy:
-        # One evaluation at the largest budget; the smaller budgets are its rollouts cut after fewer attempts.
-        most = max(args.replan)
         print(f"== {name}, re-plans {most}", file=sys.stderr, flush=True)
         report = evaluate(checkpoint, tasks, args.episodes, args.seed, most, args.workers, args.data_dir)
         for replan in args.replan:

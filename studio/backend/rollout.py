@@ -182,7 +182,7 @@ def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, ta
         attempt_stages.append({k: bool(v) for k, v in env.stages().items()})
         if attempt_stages[-1]["placed"] or controller.cancelled:
             break
-    stages = {k: bool(v) for k, v in env.stages().items()}
+    stages = attempt_stages[-1]  # the breakdown after the last attempt is the outcome
     outcome_stage = "cancelled" if controller.cancelled and not stages["placed"] else failure_stage(stages)
     event("outcome", {"success": stages["placed"], "failure_stage": outcome_stage})
     recording = recorder.finish(n_frames=n_frames, success=stages["placed"])
