@@ -279,7 +279,9 @@ def train(
 
     ``init`` starts a new run from the weights of another checkpoint or policy file with the same model
     configuration (fine-tuning on new data, or a curriculum over task sets), with a fresh optimiser and schedule;
-    it is ignored when the run resumes from its own ``last.pt``.
+    it is ignored when the run resumes from its own ``last.pt``. Two differences are allowed: a demonstration-task
+    head that is new or names other labels, and a world model the checkpoint does not have (``init`` from the
+    no-world-model ablation): either starts untrained.
 
     Under ``torchrun`` the process group is joined here unless the caller already did; a group joined here is
     also left here, after a barrier, so that no rank tears its gloo connections down while a peer still talks on
@@ -395,13 +397,19 @@ def _train_loop(
         )
         if new_head:
             saved.update({k: current[k] for k in head_keys})
+        # A checkpoint of the no-world-model ablation may start the full model (a curriculum: encoder, π, pooling
+        # and head carry over, 𝒲 starts untrained).
+        new_wm = run.model.world_model and not saved.get("world_model", True)
+        if new_wm:
+            saved["world_model"] = True
+        untrained = (("demo_task_head.",) if new_head else ()) + (("world_model.",) if new_wm else ())
         diffs = _config_differences({"model": saved}, {"model": current, "train": {}})
         if diffs:
             raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")
         state = {k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()
                  if not (new_head and k.startswith("demo_task_head."))}  # fmt: skip
         missing, unexpected = model.load_state_dict(state, strict=False)
-        if unexpected or [k for k in missing if not (new_head and k.startswith("demo_task_head."))]:
+        if unexpected or [k for k in missing if not k.startswith(untrained)]:
             raise CheckpointMismatch(f"{init}: weights do not match the model (missing {missing}, unexpected "
                                      f"{unexpected})")  # fmt: skip
     else:

@@ -6,8 +6,9 @@
 Re-running the same command after an interruption resumes from ``RUN_DIR/last.pt`` at the step it reached; a
 different ``--steps`` lengthens or shortens the resumed run (its learning-rate schedule follows the new length),
 any other change of configuration is refused. ``--restart`` starts over. ``--init CKPT`` starts a new run from
-another checkpoint's weights (fine-tuning a shipped policy on your own episodes, or a second stage of a
-curriculum over task sets). Under ``torchrun --nproc_per_node K -m studio.cli train ...`` it trains with K
+another checkpoint's weights (fine-tuning a shipped policy on your own episodes, a second stage of a
+curriculum over task sets, or growing the full model from a ``model.world_model=false`` checkpoint: 𝒲 is added
+untrained, the way ``studio quickstart`` trains OSVI-WM). Under ``torchrun --nproc_per_node K -m studio.cli train ...`` it trains with K
 data-parallel processes.
 """
 
@@ -38,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--restart", action="store_true", help="ignore an existing checkpoint in --out")
     parser.add_argument(
         "--init", default=None, metavar="CKPT",
-        help="start from this checkpoint's or policy file's weights (same model configuration; fresh optimiser)",
+        help="start from this checkpoint's or policy file's weights (same model configuration, or the same "
+             "without the world model, which then starts untrained; fresh optimiser)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -410,3 +410,20 @@ def test_parts_labels_give_the_head_one_group_per_part_and_replace_a_task_head_o
     assert "val_task_acc" in [r for r in rec if "val_loss" in r][-1]
     again = parts.with_overrides(["train.max_steps=4"])  # resumes with its own head
     assert train(again, push_pairs(), None, tmp_path / "parts", show_progress=False).step == 4
+
+
+def test_a_no_world_model_checkpoint_grows_into_the_full_model_on_init(tmp_path):
+    ablated = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(["model.world_model=false"])
+    train(ablated, SyntheticPairs(), None, tmp_path / "a", show_progress=False)
+    ckpt_path = tmp_path / "a" / "last.pt"
+    full = tiny_run_config(max_steps=1, batch_size=4, val_every=100, lr_max=1e-12, lr_final=1e-12)
+    train(full, SyntheticPairs(), None, tmp_path / "b", show_progress=False, init=ckpt_path)
+    after = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert after["config"]["model"]["world_model"] is True
+    assert any(k.startswith("world_model.") for k in after["model"])  # 𝒲 exists, untrained
+    trained = load_checkpoint(ckpt_path)["model"]
+    assert all(torch.allclose(trained[k].float(), after["model"][k].float(), atol=1e-6)
+               for k in trained if trained[k].is_floating_point() and "running" not in k)  # fmt: skip
+    # The other way round drops trained weights, so it stays an error.
+    with pytest.raises(CheckpointMismatch, match="world_model"):
+        train(ablated, SyntheticPairs(), None, tmp_path / "c", show_progress=False, init=tmp_path / "b" / "last.pt")
