@@ -13,6 +13,12 @@ one of them mirrors the layout (left target ↔ right target). ``expert_hflip`` 
 named by colour rather than place (see ``TrainConfig``): the expert video alone is mirrored on top of the shared
 flip.
 
+``pair_hue`` (not in the paper) rotates the hue of an expert video *and of its agent clips* by one shared angle,
+uniform over the whole circle: the two boxes of a push scene stay two different colours and the demonstration
+still shows the box of the agent's scene that it pushes, but which colour that is no longer predicts the motion.
+Where a training set pairs a colour with one motion only (push: the blue box is only ever pushed forward), this
+is what lets the held-out combination be read from the demonstration rather than from the colour.
+
 Mixup (paper appendix B, "asymmetric demonstration image mixup"): each expert video and each agent clip is mixed
 as β·I + (1 − β)·J with β ~ U(mixup_min, 1) and J the (augmented) first frame of a video from a *different task*
 in the batch (the reference rolls the batch and may pick the same task); labels are not mixed. A video whose
@@ -128,18 +134,22 @@ def color_jitter(frames: torch.Tensor, cfg: TrainConfig, g: torch.Generator) -> 
     gray = (x * weights).sum(2, keepdim=True)
     x = (x - gray) * factors(cfg.saturation) + gray
     if cfg.hue > 0:
-        # rotate the chroma plane of YIQ by ±hue·2π
-        angle = _uniform(b, -cfg.hue, cfg.hue, g) * 2 * math.pi
-        to_yiq = torch.tensor(
-            [[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]], dtype=torch.float64
-        )
-        rot = torch.zeros(b, 3, 3, dtype=torch.float64)
-        rot[:, 0, 0] = 1.0
-        rot[:, 1, 1], rot[:, 1, 2] = torch.cos(angle), -torch.sin(angle)
-        rot[:, 2, 1], rot[:, 2, 2] = torch.sin(angle), torch.cos(angle)
-        M = (torch.linalg.inv(to_yiq) @ rot @ to_yiq).to(dev, dt)
-        x = torch.einsum("bij,btjhw->btihw", M, x)
+        x = rotate_hue(x, _uniform(b, -cfg.hue, cfg.hue, g) * 2 * math.pi)
     return x.clamp(0.0, 1.0)
+
+
+def rotate_hue(frames: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """(B, T, 3, H, W) frames with the chroma plane of YIQ rotated by ``angle`` (B,) radians per video."""
+    to_yiq = torch.tensor(
+        [[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]], dtype=torch.float64
+    )
+    rot = torch.zeros(len(angle), 3, 3, dtype=torch.float64)
+    rot[:, 0, 0] = 1.0
+    cos, sin = torch.cos(angle.double().cpu()), torch.sin(angle.double().cpu())
+    rot[:, 1, 1], rot[:, 1, 2] = cos, -sin
+    rot[:, 2, 1], rot[:, 2, 2] = sin, cos
+    M = (torch.linalg.inv(to_yiq) @ rot @ to_yiq).to(frames.device, frames.dtype)
+    return torch.einsum("bij,btjhw->btihw", M, frames)
 
 
 def mixup_partners(tasks: torch.Tensor, g: torch.Generator) -> torch.Tensor:
@@ -188,6 +198,11 @@ def augment_batch(
     A_agt = sample_affine(b, (h, w), cfg, g, hflip[ids], vflip[ids])
     expert = color_jitter(warp(expert_frames.float() / 255.0, A_exp), cfg, g)
     agent = color_jitter(warp(agent_frames.float() / 255.0, A_agt), cfg, g)
+    if cfg.pair_hue > 0:
+        turned = torch.rand(u, generator=g) < cfg.pair_hue
+        angle = torch.where(turned, torch.rand(u, generator=g, dtype=torch.float64) * 2 * math.pi, 0.0)
+        expert = rotate_hue(expert, angle).clamp(0.0, 1.0)
+        agent = rotate_hue(agent, angle[ids]).clamp(0.0, 1.0)
     if cfg.mixup:
         expert = mixup(expert, expert_tasks, cfg, g)
         agent = mixup(agent, agent_tasks, cfg, g)

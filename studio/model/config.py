@@ -48,12 +48,22 @@ Presets (``preset(name)`` returns a ``RunConfig`` holding both halves):
   with training tasks' motions (session 9), so ``preset("cpu", "metaworld")`` leaves it off.
   ``--set train.demo_task_weight=0`` (or ``=1``) overrides it; the ``paper`` presets never use it.
 
+How the ``cpu`` preset is trained to its quality target (``studio quickstart``): not whole from the start. Trained
+whole, the full model's plan follows the demonstration within a few hundred steps but stays on a plateau where it
+ignores the agent's own scene (validation path error 0.077 m through 1700 steps; 47 % held-out; sessions 8–11),
+while the same network with ``world_model=False`` leaves that plateau by step 800. So the encoder, π, pooling and
+head are first trained with ``world_model=False``; ``studio train --init`` of that checkpoint into the full
+model then adds 𝒲 untrained (``train``) and trains everything with the paper's losses (α warm-up kept, since
+𝒲 starts from random weights). Grown that way for 700 steps, the full model kept the scene (path error 0.019 m)
+and reached 95.0 % held-out (docs/results.md, session 12).
+
 Ablations (paper section 4, "ablations"), all switches of ``ModelConfig``/``TrainConfig``:
 
 * ``ModelConfig.world_model=False`` — no world model: the action model's single latent action for the first
   agent state is pooled and decoded (a one-element trajectory); there is then no world-model loss.
   Measured on pick-and-place with the ``cpu`` recipe (docs/results.md, session 10): 99.5 % held-out against the
-  full model's 47 %, the reverse of the paper's ordering at our budget; shipped as ``pick-place-no-world-model``.
+  full model's 47 % trained whole and 95.0 % grown from it (session 12) — not the paper's ordering; shipped as
+  ``pick-place-no-world-model``.
 * ``TrainConfig.wm_loss=False`` — the world model is kept but 𝓛_wm is not applied (future frames not encoded).
   Same recipe (session 11): 24.5 %.
 * ``TrainConfig.stop_gradient=False`` — 𝓛_wm back-propagates into the encoder through the targets as well.
@@ -91,7 +101,7 @@ class ModelConfig:
         wm_blocks, wm_heads, wm_width, wm_mlp_dim, wm_dropout: the causal transformer 𝒲.
         wm_tokens: "map" (the paper: one dense token per step) or "cells" (a token per cell; see ``world_model``).
         wm_residual: 𝒲 predicts the change of state, r_{i+1} = r_i + 𝒲(…), starting from the identity (see
-            ``world_model``); off in the paper presets, on in ``cpu``, where training starts from random weights.
+            ``world_model``); off in every preset (measured reasons in ``world_model``).
         pool_heads: heads of the attention pooling over predicted steps.
         head_hidden, head_dropout: the two-layer waypoint MLP.
         max_waypoints: the largest waypoint set; sets of 1..max_waypoints are predicted (15 rows for 5).
@@ -209,6 +219,8 @@ class TrainConfig:
             by colours (``bar->blue``), which a mirror keeps, so the mirrored video is still a demonstration of
             the task; what it breaks is "grasp where the demonstration grasped", the same-place shortcut a π
             with per-cell time attention finds first (docs/results.md, session 5).
+        pair_hue: probability of rotating the hue of an expert video and its agent clips by one shared random
+            angle (0..2π; not in the paper; ``augment``), so that a colour stops predicting a motion.
         mixup, mixup_min: asymmetric demonstration mixup with β ~ U(mixup_min, 1) and a partner of another task.
         aug_warmup: fraction of the steps trained on clean pairs (no augmentation, no mixup) before both start —
             augmentation noise lengthens the plateau before π starts reading the demonstration (docs/results.md).
@@ -251,6 +263,7 @@ class TrainConfig:
     contrast: float = 0.4
     saturation: float = 0.4
     hue: float = 0.05
+    pair_hue: float = 0.0
     mixup: bool = True
     mixup_min: float = 0.3
     aug_warmup: float = 0.0

@@ -123,3 +123,22 @@ def test_colour_jitter_stays_in_range_and_is_constant_over_a_clip():
     assert out.min() >= 0 and out.max() <= 1
     assert torch.allclose(out[0, 0], out[0, 3])
     assert not torch.allclose(out[0], out[1])
+
+
+def test_pair_hue_turns_an_expert_and_its_agent_clips_by_one_angle():
+    cfg = TrainConfig(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, pair_hue=1.0, **NO_COLOUR)
+    scene = torch.tensor([150, 100, 90], dtype=torch.uint8).view(1, 1, 3, 1, 1).repeat(1, 1, 1, 8, 8)  # in gamut
+    u = 16
+    ids = torch.arange(u).repeat_interleave(2)  # two clips per expert
+    out = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
+                        ids, torch.arange(u), ids, cfg, torch.Generator().manual_seed(0))  # fmt: skip
+    colour = out.expert_frames.mean(dim=(-1, -2))  # (U, T, 3)
+    assert torch.allclose(out.agent_frames.mean(dim=(-1, -2)), colour[ids, :1].expand(2 * u, 3, 3), atol=1e-5)
+    moved = (colour[:, 0] - scene[0, 0, :, 0, 0].float() / 255).abs().amax(-1)
+    assert (moved > 0.05).sum() >= u // 2  # angles spread over the circle, one per expert
+    luma = torch.tensor([0.299, 0.587, 0.114])
+    assert torch.allclose(colour @ luma, (scene[0, 0, :, 0, 0].float() / 255 @ luma).expand(u, 2), atol=0.01)
+    plain = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
+                          ids, torch.arange(u), ids, TrainConfig(**{**cfg.__dict__, "pair_hue": 0.0}),
+                          torch.Generator().manual_seed(0))  # fmt: skip
+    assert torch.allclose(plain.expert_frames, scene.float().expand(u, 2, 3, 8, 8) / 255, atol=1e-6)
