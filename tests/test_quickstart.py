@@ -9,30 +9,35 @@ import pytest
 
 from studio.cli import main
 from studio.model.train import load_checkpoint
-from studio.quickstart import VARIANTS, add_arguments, schedule
+from studio.quickstart import add_arguments, schedule, stage_models
 
 pytestmark = pytest.mark.timeout(900)
 
 
 def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, capsys):
     args = ["quickstart", "--data-dir", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--episodes", "2",
-            "--steps", "2", "--refine-steps", "1", "--eval-episodes", "1", "--workers", "1", "--variant", "no-world-model",
+            "--steps", "2", "--refine-steps", "1", "--grow-steps", "1", "--eval-episodes", "1", "--workers", "1",
             "--set", "train.batch_size=4"]  # fmt: skip
     assert main(args) == 0
     summary = json.loads((tmp_path / "run" / "quickstart.json").read_text())
-    assert set(summary["stage_wall_s"]) == {"collect", "train", "refine", "eval"}
-    # The refine stage starts from the first stage's weights; its lowest-validation-loss checkpoint is evaluated.
-    assert summary["checkpoint"] == str(tmp_path / "run" / "refine" / "best.pt")
+    assert set(summary["stage_wall_s"]) == {"collect", "train", "refine", "grow", "eval"}
+    # The refine stage starts from the first stage's weights, the grow stage from the refine stage's
+    # lowest-validation-loss checkpoint, and the grow stage's is evaluated.
+    assert summary["checkpoint"] == str(tmp_path / "run" / "grow" / "best.pt")
     base = load_checkpoint(tmp_path / "run" / "base" / "last.pt")
-    refined = load_checkpoint(summary["checkpoint"])
+    refined = load_checkpoint(tmp_path / "run" / "refine" / "best.pt")
+    grown = load_checkpoint(summary["checkpoint"])
     assert base["step"] == 2 and refined["step"] == 1
     refine_run = json.loads((tmp_path / "run" / "refine" / "config.json").read_text())
     assert refine_run["init"] == str(tmp_path / "run" / "base" / "last.pt")
     assert base["config"]["train"]["expert_hflip"] == 0.5 and refined["config"]["train"]["alpha_warmup"] == 0
     assert refined["config"]["train"]["demo_task_weight"] == 1.0 and refined["config"]["train"]["seed"] == 1
-    # Both stages train the chosen variant.
+    # OSVI-WM is trained without its world model first, then grown: 𝒲 is added to the refined weights.
     assert base["config"]["model"]["world_model"] is False and refined["config"]["model"]["world_model"] is False
-    assert summary["variant"] == "no-world-model"
+    assert grown["config"]["model"]["world_model"] is True and grown["config"]["train"]["seed"] == 2
+    grow_run = json.loads((tmp_path / "run" / "grow" / "config.json").read_text())
+    assert grow_run["init"] == str(tmp_path / "run" / "refine" / "best.pt")
+    assert summary["variant"] == "osvi-wm"
     assert summary["rollouts"] == 2 and set(summary["tasks"]) == {"pick_place/bar->blue", "pick_place/bar->yellow"}
     assert 0.0 <= summary["held_out_success"] <= 1.0
     out = capsys.readouterr().out
@@ -46,9 +51,16 @@ def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, 
 def test_quickstart_trains_the_full_model_unless_told_otherwise():
     parser = argparse.ArgumentParser()
     add_arguments(parser)
-    assert parser.parse_args([]).variant == "osvi-wm" and VARIANTS["osvi-wm"] == ()
+    assert parser.parse_args([]).variant == "osvi-wm"
     # Each variant brings its own schedule unless the steps are given.
-    assert schedule("osvi-wm", None, None) == (1000, 700) and schedule("no-world-model", None, None) == (1600, 1100)
-    assert schedule("no-world-model", 5, 0) == (5, 0)
+    assert schedule("osvi-wm", None, None) == (1600, 1100, 700)
+    assert schedule("no-world-model", None, None) == (1600, 1100, 0)
+    assert schedule("no-world-model", 5, 0) == (5, 0, 0) and schedule("osvi-wm", 5, 0, 0) == (5, 0, 0)
+    with pytest.raises(ValueError, match="no-world-model variant has none"):
+        schedule("no-world-model", None, None, 100)
+    # OSVI-WM grows 𝒲 onto stages trained without it, or, with no grow steps, trains it whole from the start.
+    no_wm = ("model.world_model=false",)
+    assert stage_models("osvi-wm", 700) == (no_wm, ()) and stage_models("osvi-wm", 0) == ((), ())
+    assert stage_models("no-world-model", 0) == (no_wm, no_wm)
     with pytest.raises(SystemExit):
         parser.parse_args(["--variant", "no-such-model"])
