@@ -65,7 +65,7 @@ Ablations (paper section 4, "ablations"), all switches of ``ModelConfig``/``Trai
   full model's 47 % trained whole and 95.0 % grown from it (session 12) — not the paper's ordering; shipped as
   ``pick-place-no-world-model``.
 * ``TrainConfig.wm_loss=False`` — the world model is kept but 𝓛_wm is not applied (future frames not encoded).
-  Same recipe (session 11): 24.5 %.
+  Same recipe, trained whole as the full model was until session 11 (47 %): 24.5 %.
 * ``TrainConfig.stop_gradient=False`` — 𝓛_wm back-propagates into the encoder through the targets as well.
   Same recipe (session 11): 19.5 % (paper, Pick-Place: 20).
 * ``ModelConfig.pool_before_wm=True`` — spatial-softmax pooling is applied to the encoder states before π and 𝒲,
