@@ -20,8 +20,8 @@ Stages, each resumable (re-running the command skips finished work):
 6. **eval** — held-out success of the last stage's ``best.pt`` (lowest validation loss; ``last.pt`` if it has
    none), ``--eval-episodes`` rollouts per unseen task, with ``--replan`` re-plans.
 
-The wall time of each stage and the result go to stdout and to ``RUN_DIR/quickstart.json``. The two training
-stages are the recipe measured best so far on pick-and-place (docs/results.md, sessions 7, 8 and 11).
+The wall time of each stage and the result go to stdout and to ``RUN_DIR/quickstart.json``. The training stages
+are the recipe measured best so far on pick-and-place (docs/results.md, sessions 7, 8, 11 and 12).
 ``--variant`` picks the model and its default schedule (``VARIANT_STEPS``): the full OSVI-WM (default; 1600 +
 1100 steps without 𝒲, then 700 with it) or the paper's no-world-model ablation (1600 + 1100 steps). Why the
 full model is grown rather than trained whole from the start: trained whole, its plan followed the

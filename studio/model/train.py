@@ -407,7 +407,7 @@ def _train_loop(
         if diffs:
             raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")
         state = {k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()
-                 if not (new_head and k.startswith("demo_task_head."))}  # fmt: skip
+                 if not k.startswith(untrained)}  # fmt: skip
         missing, unexpected = model.load_state_dict(state, strict=False)
         if unexpected or [k for k in missing if not k.startswith(untrained)]:
             raise CheckpointMismatch(f"{init}: weights do not match the model (missing {missing}, unexpected "

@@ -8,8 +8,8 @@ different ``--steps`` lengthens or shortens the resumed run (its learning-rate s
 any other change of configuration is refused. ``--restart`` starts over. ``--init CKPT`` starts a new run from
 another checkpoint's weights (fine-tuning a shipped policy on your own episodes, a second stage of a
 curriculum over task sets, or growing the full model from a ``model.world_model=false`` checkpoint: 𝒲 is added
-untrained, the way ``studio quickstart`` trains OSVI-WM). Under ``torchrun --nproc_per_node K -m studio.cli train ...`` it trains with K
-data-parallel processes.
+untrained, the way ``studio quickstart`` trains OSVI-WM). Under ``torchrun --nproc_per_node K -m studio.cli
+train ...`` it trains with K data-parallel processes.
 """
 
 from __future__ import annotations
