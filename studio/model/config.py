@@ -189,6 +189,10 @@ class ModelConfig:
         return 1 if self.single_step else self.n_agent_frames - 1
 
 
+#: Parts of the network that ``TrainConfig.freeze`` can hold fixed (the ``OSVIWM`` submodules of those names).
+FREEZABLE = ("encoder", "action_model", "world_model", "temporal_pool", "head", "demo_task_head")
+
+
 @dataclass
 class TrainConfig:
     """Optimisation, losses, augmentation and bookkeeping of a training run.
@@ -222,6 +226,9 @@ class TrainConfig:
             with per-cell time attention finds first (docs/results.md, session 5).
         pair_hue: probability of rotating the hue of an expert video and its agent clips by one shared random
             angle (0..2π; not in the paper; ``augment``), so that a colour stops predicting a motion.
+        freeze: parts of the network left as they start (no gradient, BatchNorm statistics kept): any of
+            ``FREEZABLE`` (a comma-separated string or a list). Meant for ``--init`` runs, e.g. adding 𝒲 to a
+            no-world-model checkpoint while the encoder and π it inherits stay as they are.
         mixup, mixup_min: asymmetric demonstration mixup with β ~ U(mixup_min, 1) and a partner of another task.
         aug_warmup: fraction of the steps trained on clean pairs (no augmentation, no mixup) before both start —
             augmentation noise lengthens the plateau before π starts reading the demonstration (docs/results.md).
@@ -265,6 +272,7 @@ class TrainConfig:
     saturation: float = 0.4
     hue: float = 0.05
     pair_hue: float = 0.0
+    freeze: tuple[str, ...] = ()
     mixup: bool = True
     mixup_min: float = 0.3
     aug_warmup: float = 0.0
@@ -278,6 +286,11 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         self.scale = tuple(float(v) for v in self.scale)  # type: ignore[assignment]
+        parts = self.freeze.split(",") if isinstance(self.freeze, str) else self.freeze
+        self.freeze = tuple(str(p).strip() for p in parts if str(p).strip())
+        unknown = sorted(set(self.freeze) - set(FREEZABLE))
+        if unknown:
+            raise ValueError(f"train.freeze: unknown part(s) {', '.join(unknown)}; choose from {', '.join(FREEZABLE)}")
         if self.batch_size < 1 or self.pairs_per_expert < 1:
             raise ValueError(
                 f"batch_size and pairs_per_expert must be >= 1, got {self.batch_size}, {self.pairs_per_expert}"

@@ -112,6 +112,21 @@ class OSVIWM(nn.Module):
             else None
         )
 
+    # ---------------------------------------------------------------- frozen parts
+    def freeze(self, parts: tuple[str, ...]) -> None:
+        """Hold the named submodules fixed: no gradient, and eval mode whatever ``train()`` asks, so BatchNorm
+        keeps the statistics it was trained with. A part the model does not have (no 𝒲) is ignored."""
+        self._frozen = tuple(p for p in parts if getattr(self, p, None) is not None)
+        for name in self._frozen:
+            getattr(self, name).requires_grad_(False)
+        self.train(self.training)
+
+    def train(self, mode: bool = True) -> OSVIWM:
+        super().train(mode)
+        for name in getattr(self, "_frozen", ()):
+            getattr(self, name).eval()
+        return self
+
     # ---------------------------------------------------------------- pieces
     def encode(self, frames: torch.Tensor) -> torch.Tensor:
         """(…, 3, H, W) uint8 or [0, 1] frames → (…, *state_shape) states."""

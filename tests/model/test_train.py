@@ -427,3 +427,23 @@ def test_a_no_world_model_checkpoint_grows_into_the_full_model_on_init(tmp_path)
     # The other way round drops trained weights, so it stays an error.
     with pytest.raises(CheckpointMismatch, match="world_model"):
         train(ablated, SyntheticPairs(), None, tmp_path / "c", show_progress=False, init=tmp_path / "b" / "last.pt")
+
+
+def test_frozen_parts_keep_their_weights_and_batchnorm_statistics_while_the_rest_trains(tmp_path):
+    ablated = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(["model.world_model=false"])
+    train(ablated, SyntheticPairs(), None, tmp_path / "a", show_progress=False)
+    start = load_checkpoint(tmp_path / "a" / "last.pt")["model"]
+    grow = tiny_run_config(max_steps=3, batch_size=4, val_every=2, lr_max=1e-2).with_overrides(
+        ["train.freeze=encoder,action_model"]
+    )
+    assert grow.train.freeze == ("encoder", "action_model")
+    train(grow, SyntheticPairs(), SyntheticPairs(split="val"), tmp_path / "b", show_progress=False,
+          init=tmp_path / "a" / "last.pt")  # fmt: skip
+    after = load_checkpoint(tmp_path / "b" / "last.pt")["model"]
+    frozen = [k for k in start if k.startswith(("encoder.", "action_model."))]
+    assert any("running_mean" in k for k in frozen)  # BatchNorm statistics are among them (train mode would move them)
+    assert all(torch.equal(start[k], after[k]) for k in frozen)
+    moved = [k for k in start if k.startswith(("head.", "temporal_pool.")) and start[k].is_floating_point()]
+    assert any(not torch.equal(start[k], after[k]) for k in moved)
+    with pytest.raises(ValueError, match="unknown part"):
+        tiny_run_config().with_overrides(["train.freeze=decoder"])
