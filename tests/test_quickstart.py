@@ -6,6 +6,7 @@ import argparse
 import json
 
 import pytest
+import torch
 
 from studio.cli import main
 from studio.model.train import load_checkpoint
@@ -35,6 +36,10 @@ def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, 
     # OSVI-WM is trained without its world model first, then grown: 𝒲 is added to the refined weights.
     assert base["config"]["model"]["world_model"] is False and refined["config"]["model"]["world_model"] is False
     assert grown["config"]["model"]["world_model"] is True and grown["config"]["train"]["seed"] == 2
+    # Pairs are mirrored in every stage; the grow stage keeps the encoder it inherits.
+    assert base["config"]["train"]["hflip"] == 0.5 and grown["config"]["train"]["hflip"] == 0.5
+    assert tuple(grown["config"]["train"]["freeze"]) == ("encoder",) and not base["config"]["train"]["freeze"]
+    assert all(torch.equal(refined["model"][k], grown["model"][k]) for k in refined["model"] if k.startswith("encoder."))
     grow_run = json.loads((tmp_path / "run" / "grow" / "config.json").read_text())
     assert grow_run["init"] == str(tmp_path / "run" / "refine" / "best.pt")
     assert summary["variant"] == "osvi-wm"
