@@ -31,8 +31,8 @@ full model is grown rather than trained whole from the start: trained whole, its
 demonstration but never the agent's scene in 1700 steps (47 % held-out; sessions 8–11), while the same
 network without 𝒲 learns to find the demonstrated object in the agent's scene within 800 steps; grown from
 that, the full model kept it (docs/results.md, session 12) — mostly: with the encoder still training, the
-grow stage lost 3.5–10 points of held-out success against its starting point in three of three runs, and with
-the encoder fixed it lost none (docs/results.md, session 13).
+grow stage lost 3.5–10 points of held-out success against its starting point in all four runs, and with
+the encoder fixed it lost none in three (docs/results.md, session 13).
 """
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ model then adds 𝒲 untrained (``train``) and trains everything with the paper'
 𝒲 starts from random weights). Grown that way for 700 steps, the full model kept the scene (path error 0.019 m)
 and reached 95.0 % held-out (docs/results.md, session 12). Since session 13 the grow stage holds the encoder
 fixed (``TrainConfig.freeze``; π, 𝒲, pooling and head train): with the encoder training, every grow run lost
-3.5–10 points of held-out success against its starting point; fixed, two runs kept 100 %. Every stage also
+3.5–10 points of held-out success against its starting point; fixed, three runs kept 100 %. Every stage also
 mirrors whole demonstration–agent pairs half the time (``hflip=0.5`` on top of ``expert_hflip=0.5``). These are
 the quickstart's settings, not the preset's: the preset trains one stage. With the encoder fixed, the
 no-stop-gradient ablation is the full model (no gradient reaches the encoder either way), so it is grown with the

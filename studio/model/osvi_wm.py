@@ -104,6 +104,7 @@ class OSVIWM(nn.Module):
             nn.Linear(cfg.head_hidden, cfg.waypoint_rows * 4),
         )
         self.register_buffer("depth_offset", torch.tensor(float(cfg.depth_offset)))
+        self._frozen: tuple[str, ...] = ()  # submodules held fixed (``freeze``)
         # Optional (not in the paper): names the demonstrated task from π's outputs at the expert frames,
         # averaged over frames and cells; trained by TrainConfig.demo_task_weight.
         self.demo_task_head = (
@@ -123,7 +124,7 @@ class OSVIWM(nn.Module):
 
     def train(self, mode: bool = True) -> OSVIWM:
         super().train(mode)
-        for name in getattr(self, "_frozen", ()):
+        for name in self._frozen:
             getattr(self, name).eval()
         return self
 
