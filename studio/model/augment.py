@@ -19,6 +19,11 @@ still shows the box of the agent's scene that it pushes, but which colour that i
 Where a training set pairs a colour with one motion only (push: the blue box is only ever pushed forward), this
 is what lets the held-out combination be read from the demonstration rather than from the colour.
 
+``pair_channels`` (not in the paper) does the same with a shared permutation of the RGB channels, drawn from
+the five that are not the identity: saturated colours stay saturated and distinct (red, green and blue trade
+places), where a hue rotation passes through in-between shades. It changes the whole scene, table and arm
+included, and is drawn after the colour jitter, so it is an exact relabelling of the colours the pair shows.
+
 Mixup (paper appendix B, "asymmetric demonstration image mixup"): each expert video and each agent clip is mixed
 as β·I + (1 − β)·J with β ~ U(mixup_min, 1) and J the (augmented) first frame of a video from a *different task*
 in the batch (the reference rolls the batch and may pick the same task); labels are not mixed. A video whose
@@ -152,6 +157,17 @@ def rotate_hue(frames: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     return torch.einsum("bij,btjhw->btihw", M, frames)
 
 
+CHANNEL_PERMUTATIONS = torch.tensor([[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]])
+"""Every ordering of (R, G, B); row 0 is the identity."""
+
+
+def permute_channels(frames: torch.Tensor, which: torch.Tensor) -> torch.Tensor:
+    """(B, T, 3, H, W) frames with their colour channels reordered by ``CHANNEL_PERMUTATIONS[which]`` (B,)."""
+    order = CHANNEL_PERMUTATIONS[which.cpu()].to(frames.device)
+    index = order.view(-1, 1, 3, 1, 1).expand(-1, frames.shape[1], 3, *frames.shape[-2:])
+    return torch.gather(frames, 2, index)
+
+
 def mixup_partners(tasks: torch.Tensor, g: torch.Generator) -> torch.Tensor:
     """For each video, a random index of a video of another task, or −1 when the batch has none."""
     out = torch.full((len(tasks),), -1, dtype=torch.long)
@@ -203,6 +219,11 @@ def augment_batch(
         angle = torch.where(turned, torch.rand(u, generator=g, dtype=torch.float64) * 2 * math.pi, 0.0)
         expert = rotate_hue(expert, angle).clamp(0.0, 1.0)
         agent = rotate_hue(agent, angle[ids]).clamp(0.0, 1.0)
+    if cfg.pair_channels > 0:
+        permuted = torch.rand(u, generator=g) < cfg.pair_channels
+        which = torch.where(permuted, torch.randint(1, len(CHANNEL_PERMUTATIONS), (u,), generator=g), 0)
+        expert = permute_channels(expert, which)
+        agent = permute_channels(agent, which[ids])
     if cfg.mixup:
         expert = mixup(expert, expert_tasks, cfg, g)
         agent = mixup(agent, agent_tasks, cfg, g)

@@ -232,6 +232,9 @@ class TrainConfig:
             with per-cell time attention finds first (docs/results.md, session 5).
         pair_hue: probability of rotating the hue of an expert video and its agent clips by one shared random
             angle (0..2π; not in the paper; ``augment``), so that a colour stops predicting a motion.
+        pair_channels: probability of reordering the RGB channels of an expert video and its agent clips by one
+            shared permutation (one of the five that change something; not in the paper; ``augment``): the
+            same purpose as ``pair_hue`` with the colours kept saturated and apart.
         freeze: parts of the network left as they start (no gradient, BatchNorm statistics kept): any of
             ``FREEZABLE`` (a comma-separated string or a list). Meant for ``--init`` runs, e.g. adding 𝒲 to a
             no-world-model checkpoint while the encoder and π it inherits stay as they are.
@@ -278,6 +281,7 @@ class TrainConfig:
     saturation: float = 0.4
     hue: float = 0.05
     pair_hue: float = 0.0
+    pair_channels: float = 0.0
     freeze: tuple[str, ...] = ()
     mixup: bool = True
     mixup_min: float = 0.3

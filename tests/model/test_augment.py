@@ -1,6 +1,8 @@
-"""Augmentation: label consistency of pixel-affine warps, shared flips, mixup partners from other tasks."""
+"""Augmentation: label consistency of pixel-affine warps, shared flips, mixup partners from other tasks, pair colour changes."""
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 import pytest
@@ -140,5 +142,24 @@ def test_pair_hue_turns_an_expert_and_its_agent_clips_by_one_angle():
     assert torch.allclose(colour @ luma, (scene[0, 0, :, 0, 0].float() / 255 @ luma).expand(u, 2), atol=0.01)
     plain = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
                           ids, torch.arange(u), ids, TrainConfig(**{**cfg.__dict__, "pair_hue": 0.0}),
+                          torch.Generator().manual_seed(0))  # fmt: skip
+    assert torch.allclose(plain.expert_frames, scene.float().expand(u, 2, 3, 8, 8) / 255, atol=1e-6)
+
+
+def test_pair_channels_reorders_an_expert_and_its_agent_clips_by_one_permutation():
+    cfg = TrainConfig(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, pair_channels=1.0, **NO_COLOUR)
+    rgb = torch.tensor([200, 120, 40], dtype=torch.uint8)
+    scene = rgb.view(1, 1, 3, 1, 1).repeat(1, 1, 1, 8, 8)
+    u = 30
+    ids = torch.arange(u).repeat_interleave(2)  # two clips per expert
+    out = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
+                        ids, torch.arange(u), ids, cfg, torch.Generator().manual_seed(0))  # fmt: skip
+    colour = out.expert_frames.mean(dim=(-1, -2))  # (U, T, 3)
+    assert torch.allclose(out.agent_frames.mean(dim=(-1, -2)), colour[ids, :1].expand(2 * u, 3, 3), atol=1e-6)
+    seen = {tuple(round(v * 255) for v in c.tolist()) for c in colour[:, 0]}
+    every_other_order = {tuple(rgb[list(p)].tolist()) for p in itertools.permutations(range(3))} - {tuple(rgb.tolist())}
+    assert seen == every_other_order  # never the identity; all five others drawn over 30 experts
+    plain = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
+                          ids, torch.arange(u), ids, TrainConfig(**{**cfg.__dict__, "pair_channels": 0.0}),
                           torch.Generator().manual_seed(0))  # fmt: skip
     assert torch.allclose(plain.expert_frames, scene.float().expand(u, 2, 3, 8, 8) / 255, atol=1e-6)
