@@ -127,39 +127,35 @@ def test_colour_jitter_stays_in_range_and_is_constant_over_a_clip():
     assert not torch.allclose(out[0], out[1])
 
 
-def test_pair_hue_turns_an_expert_and_its_agent_clips_by_one_angle():
-    cfg = TrainConfig(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, pair_hue=1.0, **NO_COLOUR)
-    scene = torch.tensor([150, 100, 90], dtype=torch.uint8).view(1, 1, 3, 1, 1).repeat(1, 1, 1, 8, 8)  # in gamut
-    u = 16
-    ids = torch.arange(u).repeat_interleave(2)  # two clips per expert
+def _uniform_pairs(rgb: list[int], u: int, **settings) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Mean colours of ``u`` uniform 8×8 expert videos of colour ``rgb`` (U, 2, 3) and of their two agent clips
+    each (2U, 3, 3) after ``augment_batch`` with only ``settings`` on; and the clips' expert index."""
+    cfg = TrainConfig(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, **NO_COLOUR, **settings)
+    scene = torch.tensor(rgb, dtype=torch.uint8).view(1, 1, 3, 1, 1).repeat(1, 1, 1, 8, 8)
+    ids = torch.arange(u).repeat_interleave(2)
     out = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
                         ids, torch.arange(u), ids, cfg, torch.Generator().manual_seed(0))  # fmt: skip
-    colour = out.expert_frames.mean(dim=(-1, -2))  # (U, T, 3)
-    assert torch.allclose(out.agent_frames.mean(dim=(-1, -2)), colour[ids, :1].expand(2 * u, 3, 3), atol=1e-5)
-    moved = (colour[:, 0] - scene[0, 0, :, 0, 0].float() / 255).abs().amax(-1)
-    assert (moved > 0.05).sum() >= u // 2  # angles spread over the circle, one per expert
+    return out.expert_frames.mean(dim=(-1, -2)), out.agent_frames.mean(dim=(-1, -2)), ids
+
+
+def test_pair_hue_turns_an_expert_and_its_agent_clips_by_one_angle():
+    rgb = [150, 100, 90]  # in gamut
+    colour, agent, ids = _uniform_pairs(rgb, 16, pair_hue=1.0)
+    assert torch.allclose(agent, colour[ids, :1].expand(-1, 3, 3), atol=1e-5)
+    moved = (colour[:, 0] - torch.tensor(rgb) / 255).abs().amax(-1)
+    assert (moved > 0.05).sum() >= 8  # angles spread over the circle, one per expert
     luma = torch.tensor([0.299, 0.587, 0.114])
-    assert torch.allclose(colour @ luma, (scene[0, 0, :, 0, 0].float() / 255 @ luma).expand(u, 2), atol=0.01)
-    plain = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
-                          ids, torch.arange(u), ids, TrainConfig(**{**cfg.__dict__, "pair_hue": 0.0}),
-                          torch.Generator().manual_seed(0))  # fmt: skip
-    assert torch.allclose(plain.expert_frames, scene.float().expand(u, 2, 3, 8, 8) / 255, atol=1e-6)
+    assert torch.allclose(colour @ luma, (torch.tensor(rgb) / 255 @ luma).expand(16, 2), atol=0.01)
+    plain, _, _ = _uniform_pairs(rgb, 16, pair_hue=0.0)
+    assert torch.allclose(plain, (torch.tensor(rgb) / 255).expand(16, 2, 3), atol=1e-6)
 
 
 def test_pair_channels_reorders_an_expert_and_its_agent_clips_by_one_permutation():
-    cfg = TrainConfig(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, pair_channels=1.0, **NO_COLOUR)
-    rgb = torch.tensor([200, 120, 40], dtype=torch.uint8)
-    scene = rgb.view(1, 1, 3, 1, 1).repeat(1, 1, 1, 8, 8)
-    u = 30
-    ids = torch.arange(u).repeat_interleave(2)  # two clips per expert
-    out = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
-                        ids, torch.arange(u), ids, cfg, torch.Generator().manual_seed(0))  # fmt: skip
-    colour = out.expert_frames.mean(dim=(-1, -2))  # (U, T, 3)
-    assert torch.allclose(out.agent_frames.mean(dim=(-1, -2)), colour[ids, :1].expand(2 * u, 3, 3), atol=1e-6)
+    rgb = [200, 120, 40]
+    colour, agent, ids = _uniform_pairs(rgb, 30, pair_channels=1.0)
+    assert torch.allclose(agent, colour[ids, :1].expand(-1, 3, 3), atol=1e-6)
     seen = {tuple(round(v * 255) for v in c.tolist()) for c in colour[:, 0]}
-    every_other_order = {tuple(rgb[list(p)].tolist()) for p in itertools.permutations(range(3))} - {tuple(rgb.tolist())}
+    every_other_order = {tuple(rgb[i] for i in p) for p in itertools.permutations(range(3))} - {tuple(rgb)}
     assert seen == every_other_order  # never the identity; all five others drawn over 30 experts
-    plain = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
-                          ids, torch.arange(u), ids, TrainConfig(**{**cfg.__dict__, "pair_channels": 0.0}),
-                          torch.Generator().manual_seed(0))  # fmt: skip
-    assert torch.allclose(plain.expert_frames, scene.float().expand(u, 2, 3, 8, 8) / 255, atol=1e-6)
+    plain, _, _ = _uniform_pairs(rgb, 30, pair_channels=0.0)
+    assert torch.allclose(plain, (torch.tensor(rgb) / 255).expand(30, 2, 3), atol=1e-6)
