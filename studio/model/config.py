@@ -379,25 +379,28 @@ def _from_dict(cls, d: dict[str, Any]):
 
 
 PRESETS = ("paper", "paper-metaworld", "cpu")
-#: Scenes on which the ``cpu`` preset adds the demonstration-task loss, each measured (docs/results.md): on
-#: pick-and-place it was the only setting that found the demonstrated object (sessions 7–8). On Meta-World it
-#: made held-out success collapse (14.5 % → 0 %, session 9); on push it taught "the blue box goes forward" (the
-#: only blue task in training) and held the unseen ``blue-backward`` at 0–5 %, against 100 % without it on two
-#: seeds (session 14). There the preset keeps the paper's losses.
-DEMO_TASK_LOSS_SCENES = ("pick_place",)
-#: Training settings the ``cpu`` preset adds for one scene (docs/results.md, session 14). Push: the expert video
-#: alone mirrored half the time (its two box slots swap per episode, so "push where the demonstration pushed" must
-#: not pay) and each pair's hue turned by one shared random angle half the time, so that a box's colour stops
-#: predicting the direction it is pushed in.
-SCENE_TRAIN_SETTINGS: dict[str, dict[str, float]] = {"push": {"expert_hflip": 0.5, "pair_hue": 0.5}}
+#: Training settings the ``cpu`` preset adds for one scene, each measured (docs/results.md); a scene not listed
+#: (Meta-World) gets the preset as it is. The demonstration-task loss: on pick-and-place it was the only setting
+#: that found the demonstrated object (sessions 7–8); on Meta-World it made held-out success collapse (14.5 % →
+#: 0 %, session 9); on push it taught "the blue box goes forward" (the only blue task in training) and held the
+#: unseen ``blue-backward`` at 0–5 %, against 100 % without it on two seeds (session 14). Push instead mirrors the
+#: expert video alone half the time (its two box slots swap per episode, so "push where the demonstration
+#: pushed" must not pay) and turns each pair's hue by one shared random angle half the time, so that a box's
+#: colour stops predicting the direction it is pushed in (session 14).
+SCENE_TRAIN_SETTINGS: dict[str, dict[str, float]] = {
+    "pick_place": {"demo_task_weight": 1.0},
+    "push": {"expert_hflip": 0.5, "pair_hue": 0.5},
+}
+#: The scenes whose ``cpu`` preset has the demonstration-task loss (read from :data:`SCENE_TRAIN_SETTINGS`).
+DEMO_TASK_LOSS_SCENES = tuple(s for s, settings in SCENE_TRAIN_SETTINGS.items() if settings.get("demo_task_weight"))
 
 
 def preset(name: str, scene: str | None = None) -> RunConfig:
     """The named configuration (see the module docstring) for training on ``scene`` (None: pick-and-place).
 
-    Only the ``cpu`` preset depends on the scene: its demonstration-task loss is on for
-    :data:`DEMO_TASK_LOSS_SCENES` only, and :data:`SCENE_TRAIN_SETTINGS` adds a scene's own augmentation.
-    Overrides (``with_overrides``) still set anything.
+    Only the ``cpu`` preset depends on the scene: :data:`SCENE_TRAIN_SETTINGS` adds a scene's own settings (the
+    demonstration-task loss on pick-and-place, push's augmentation). Overrides (``with_overrides``) still set
+    anything.
     """
     if name == "paper":
         return RunConfig(ModelConfig(), TrainConfig())
@@ -426,10 +429,8 @@ def preset(name: str, scene: str | None = None) -> RunConfig:
         )
         train = TrainConfig(batch_size=16, epochs=10.0, val_every=250, checkpoint_every=100, lr_max=1e-3,
                             lr_warmup=0.05, hflip=0.0, mixup=False, alpha_warmup=0.1, aug_warmup=0.1,
-                            demo_task_weight=1.0 if scene is None or scene in DEMO_TASK_LOSS_SCENES else 0.0,
                             crop=0.0, translate=0.0, scale=(1.0, 1.0), brightness=0.0, contrast=0.0,
-                            saturation=0.0, hue=0.0)
-        train = dataclasses.replace(train, **SCENE_TRAIN_SETTINGS.get(scene or "pick_place", {}))
+                            saturation=0.0, hue=0.0, **SCENE_TRAIN_SETTINGS.get(scene or "pick_place", {}))
         return RunConfig(model, train)
     raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
 
