@@ -30,6 +30,9 @@ class SplitSpec:
     description: str = ""
     test_groups: dict[str, tuple[str, ...]] = field(default_factory=dict)
     """Named groups of test tasks reported together (Meta-World: ``easy`` and ``hard``, as in the paper's Table 1)."""
+    replan_groups: tuple[str, ...] = ()
+    """Test groups the paper's protocol re-plans on (Meta-World: ``hard``); the other test tasks get one attempt.
+    ``studio results`` adds a row per policy evaluated that way."""
 
     def __post_init__(self) -> None:
         overlap = set(self.train) & set(self.test)
@@ -43,6 +46,14 @@ class SplitSpec:
             stray = set(tasks) - set(self.test)
             if stray:
                 raise ValueError(f"split {self.scene!r}: test group {group!r} names non-test tasks {sorted(stray)}")
+        unknown = set(self.replan_groups) - set(self.test_groups)
+        if unknown:
+            raise ValueError(f"split {self.scene!r}: replan_groups names groups it does not define: {sorted(unknown)}")
+
+    def replanned_tasks(self) -> tuple[str, ...]:
+        """The test tasks of ``replan_groups``, in test order."""
+        chosen = {t for g in self.replan_groups for t in self.test_groups[g]}
+        return tuple(t for t in self.test if t in chosen)
 
     def tasks(self, split: str) -> tuple[str, ...]:
         """The tasks a split draws from: training tasks for ``train`` and ``val``, held-out ones for ``test``."""
@@ -59,6 +70,7 @@ class SplitSpec:
             val_fraction=float(d.get("val_fraction", 0.1)),
             description=d.get("description", ""),
             test_groups={str(k): tuple(v) for k, v in d.get("test_groups", {}).items()},
+            replan_groups=tuple(d.get("replan_groups", ())),
         )
 
 

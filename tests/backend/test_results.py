@@ -6,8 +6,12 @@ import argparse
 
 import pytest
 
-from studio.backend.results import parse_policy, render_markdown
+from studio.backend.evaluation import RolloutSummary, summarise
+from studio.backend.results import budget_rows, parse_policy, render_markdown
 from studio.data.splits import load_split
+
+MW_TASKS = ("metaworld/button-press-v3", "metaworld/pick-place-wall-v3", "metaworld/window-open-v3",
+            "metaworld/door-unlock-v3")  # fmt: skip
 
 
 def _report(rates: dict[str, float], n: int = 10) -> dict:
@@ -43,3 +47,43 @@ def test_policy_argument_needs_a_name_and_a_path():
     assert parse_policy("osvi=runs/a/best.pt") == ("osvi", "runs/a/best.pt")
     with pytest.raises(argparse.ArgumentTypeError, match="NAME=CHECKPOINT"):
         parse_policy("runs/a/best.pt")
+
+
+def _attempts(outcomes: list[bool]) -> list[dict[str, bool]]:
+    return [{"reached": True, "grasped": ok, "placed": ok} for ok in outcomes]
+
+
+def _evaluated(outcomes_by_task: dict[str, list[list[bool]]], replan: int) -> dict:
+    """An evaluation report with rows whose attempts end as given (each list: one rollout's attempts in order)."""
+    rows = []
+    for task, rollouts in outcomes_by_task.items():
+        for i, outcomes in enumerate(rollouts):
+            rows.append(RolloutSummary(
+                rollout_id=f"{task}-{i}", task=task, index=i, seed=i, expert_episode_id="e", success=outcomes[-1],
+                reached=True, grasped=outcomes[-1], placed=outcomes[-1], failure_stage=None if outcomes[-1] else "grasp",
+                replans=len(outcomes) - 1, planning_time_s=0.1, duration_s=1.0, attempt_stages=_attempts(outcomes),
+                attempt_planning_s=[0.1] * len(outcomes)))  # fmt: skip
+    return {**summarise(rows), "replan": replan, "wall_s": 60.0, "rows": [r.__dict__ for r in rows]}
+
+
+def test_paper_protocol_row_replans_on_the_hard_tasks_only():
+    # Every task: one rollout that succeeds at once, one that succeeds on its second attempt, one that never does.
+    rollouts = [[True], [False, True], [False, False, False]]
+    report = _evaluated({t: rollouts for t in MW_TASKS}, replan=2)
+    rows = budget_rows("osvi-wm", report, [0, 2], load_split("metaworld"))
+    assert [(name, k) for name, k, _ in rows] == [("osvi-wm", 0), ("osvi-wm", 2), ("osvi-wm", "2, hard only")]
+    (_, _, none), (_, _, full), (_, _, paper) = rows
+    for task in MW_TASKS:
+        assert none["tasks"][task]["success"] == pytest.approx(1 / 3)
+        assert full["tasks"][task]["success"] == pytest.approx(2 / 3)
+    hard = ("metaworld/window-open-v3", "metaworld/door-unlock-v3")
+    assert {t: paper["tasks"][t]["success"] for t in MW_TASKS} == pytest.approx(
+        {t: 2 / 3 if t in hard else 1 / 3 for t in MW_TASKS})
+    assert paper["success"] == pytest.approx(0.5) and paper["replan_cut_tasks"] == sorted(set(MW_TASKS) - set(hard))
+    table = render_markdown(rows, load_split("metaworld").test_groups)
+    paper_line = table.strip().splitlines()[-1]
+    assert paper_line.startswith("| osvi-wm | 2, hard only |") and "**50.0%**" in paper_line
+    # No such row without re-plans to keep, nor for a split that names no replan groups.
+    single = _evaluated({t: [[True]] for t in MW_TASKS}, replan=0)
+    assert [k for _, k, _ in budget_rows("p", single, [0], load_split("metaworld"))] == [0]
+    assert [k for _, k, _ in budget_rows("p", report, [0, 2], load_split("pick_place"))] == [0, 2]

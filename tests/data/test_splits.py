@@ -34,10 +34,13 @@ def test_metaworld_splits_follow_paper():
     assert hard == ["metaworld/window-open-v3", "metaworld/door-unlock-v3"]
     assert spec.scene == "metaworld" and spec.test == tuple(easy + hard) and len(spec.train) == 46
     assert spec.test_groups == {"easy": tuple(easy), "hard": tuple(hard)}
+    assert spec.replan_groups == ("hard",) and spec.replanned_tasks() == tuple(hard)  # the paper re-plans on hard
     assert sorted(spec.train + spec.test) == sorted(list_tasks("metaworld"))
     assert set(raw["twins"]) == set(spec.test) and set(raw["twins"].values()) <= set(spec.train)
     ablation = load_split("metaworld_ablation")
     assert ablation.scene == "metaworld" and ablation.test == spec.test
+    assert ablation.replanned_tasks() == spec.replanned_tasks()
+    assert load_split("pick_place").replanned_tasks() == ()
     assert set(spec.train) - set(ablation.train) == {"metaworld/window-close-v3"}
     assert set(ablation.train) < set(spec.train)
 
@@ -50,6 +53,8 @@ def test_split_from_file_and_errors(tmp_path):
         SplitSpec("x", train=("a/b",), test=("a/b",))
     with pytest.raises(ValueError, match="names non-test tasks"):
         SplitSpec("x", train=("a/b",), test=("a/c",), test_groups={"easy": ("a/b",)})
+    with pytest.raises(ValueError, match=r"replan_groups names groups it does not define: \['hard'\]"):
+        SplitSpec("x", train=("a/b",), test=("a/c",), test_groups={"easy": ("a/c",)}, replan_groups=("hard",))
     with pytest.raises(ValueError, match="no split file"):
         load_split("kitchen")
     with pytest.raises(ValueError, match="split must be"):
