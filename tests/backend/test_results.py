@@ -7,7 +7,7 @@ import argparse
 import pytest
 
 from studio.backend.evaluation import RolloutSummary, summarise
-from studio.backend.results import budget_rows, parse_policy, render_markdown
+from studio.backend.results import budget_rows, json_rows, parse_policy, render_markdown
 from studio.data.splits import load_split
 
 MW_TASKS = ("metaworld/button-press-v3", "metaworld/pick-place-wall-v3", "metaworld/window-open-v3",
@@ -83,6 +83,8 @@ def test_paper_protocol_row_replans_on_the_hard_tasks_only():
     table = render_markdown(rows, load_split("metaworld").test_groups)
     paper_line = table.strip().splitlines()[-1]
     assert paper_line.startswith("| osvi-wm | 2, hard only |") and "**50.0%**" in paper_line
+    assert [row["replan"] for row in json_rows(rows)] == [0, 2, "2, hard only"]
+    assert all("rows" not in row for row in json_rows(rows))
     # No such row without re-plans to keep, nor for a split that names no replan groups.
     single = _evaluated({t: [[True]] for t in MW_TASKS}, replan=0)
     assert [k for _, k, _ in budget_rows("p", single, [0], load_split("metaworld"))] == [0]
