@@ -22,7 +22,7 @@ import platform
 import sys
 from pathlib import Path
 
-from studio.backend.evaluation import with_budget
+from studio.backend.evaluation import evaluate, resolve_tasks, with_budget
 from studio.data.paths import add_data_dir_argument
 from studio.data.splits import SplitSpec, load_split
 
@@ -99,8 +99,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from studio.backend.evaluation import evaluate, resolve_tasks
-
     tasks = resolve_tasks("held-out", args.scene)
     split = load_split(args.scene)
     reports: list[tuple[str, int | str, dict]] = []
