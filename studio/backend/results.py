@@ -91,7 +91,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a checkpoint to evaluate, named for the table (repeatable; 'oracle' allowed)")  # fmt: skip
     parser.add_argument("--scene", default="pick_place")
     parser.add_argument("--episodes", type=int, default=100, help="rollouts per held-out task")
-    parser.add_argument("--replan", type=int, nargs="+", default=[0, 2], help="re-plan budgets to report")
+    parser.add_argument("--replan", type=int, nargs="+", default=[0, 2], help="re-plan budgets to report (a split with replan_groups, e.g. Meta-World, also gets the paper's "
+                             "row: the largest budget on those groups only)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=None, help="Markdown file to write (default: print only)")
