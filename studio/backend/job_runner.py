@@ -304,7 +304,7 @@ class JobRunner:
             )
             self._current = _Running(assign, ctx, status, thread)
         self.presence.update(state="busy", job=assign.job, activity=f"{assign.kind} job {assign.job}")
-        self.publish(keys.job_key(assign.job, "status"), status)
+        self.publish(keys.job_key(assign.job, "report"), status)
         thread.start()
         return status
 
@@ -365,7 +365,7 @@ class JobRunner:
             return
         if result_msg is not None:
             self.publish(keys.job_key(assign.job, "result"), result_msg)
-        self.publish(keys.job_key(assign.job, "status"), status)
+        self.publish(keys.job_key(assign.job, "report"), status)
         self.presence.update(state="idle", job=None, activity="idle")
 
     @property

@@ -17,9 +17,10 @@ Life of a job::
 * **Listing**: the queue answers ``studio/jobs/*/status`` (and ``…/result``, ``…/progress``), so a
   restarted UI lists jobs with one query and then watches the ones it shows.
 
+Workers report on ``…/report``, which only the queue hears; the queue is the one publisher of
+``…/status`` and publishes a state only after recording it, so what a watcher sees is already listed.
 Of two statuses of one job, the one with the larger :func:`~studio.backend.messages.status_rank` wins
-(attempt, then queued < running < finished); everybody applies that rule, so the order in which the
-queue's and the worker's publications arrive does not matter.
+(attempt, then queued < running < finished), so late or repeated reports do no harm.
 """
 
 from __future__ import annotations
@@ -123,9 +124,7 @@ class JobQueue:
             bus.declare_queryable(session, keys.all_jobs("status"), self._on_list("status")),
             bus.declare_queryable(session, keys.all_jobs("result"), self._on_list("result")),
             bus.declare_queryable(session, keys.all_jobs("progress"), self._on_list("progress")),
-            bus.declare_subscriber(
-                session, keys.all_jobs("status"), self._on_worker_status, msg.JobStatus, **remote
-            ),
+            bus.declare_subscriber(session, keys.all_jobs("report"), self._on_worker_status, msg.JobStatus),
             bus.declare_subscriber(
                 session, keys.all_jobs("result"), self._on_result, msg.JobResult, **remote
             ),
@@ -342,6 +341,9 @@ class JobQueue:
         self._merge_status(status)
 
     def _merge_status(self, status: msg.JobStatus) -> None:
+        """Apply a worker's report of a job. Workers report to the queue alone (``…/report``); the queue
+        publishes the merged status on ``…/status`` after recording it, so a watcher never sees a state
+        that :meth:`JobClient.list` does not list yet."""
         with self._cond:
             job = self._jobs.get(status.job)
             if job is None:
@@ -352,7 +354,7 @@ class JobQueue:
                     self._assigned[status.worker] = _Assignment(
                         status.job, status.kind, status.worker, status.attempt
                     )
-                self._set_status_locked(job, status, publish=False)
+                self._set_status_locked(job, status)
                 return
             cur = job.status
             if status.attempt != cur.attempt:
@@ -377,7 +379,7 @@ class JobQueue:
                 if cur.state == "running" and cur.worker == status.worker:
                     job.status = status
                     return
-            self._set_status_locked(job, status, publish=False)
+            self._set_status_locked(job, status)
 
     def _on_result(self, result: msg.JobResult, sample: zenoh.Sample) -> None:
         with self._cond:

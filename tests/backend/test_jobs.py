@@ -241,8 +241,9 @@ def test_malformed_job_requests_get_error_replies_and_nothing_crashes(hub, worke
     submit = msg.JobSubmit(job="x2", kind="count", worker_kind="train", spec={})
     with pytest.raises(bus.RemoteError, match="bad_request"):
         bus.request(hub.session, keys.job_key("x1", "submit"), submit, msg.JobStatus)
-    # Garbage published on the status keys is dropped by the queue.
+    # Garbage published on the status and report keys is dropped by the queue.
     hub.session.put(keys.job_key("x3", "status"), b"\x00\x01\x02")
+    hub.session.put(keys.job_key("x3", "report"), b"\x00\x01\x02")
     status = JobClient(hub.session).submit("count", count_spec(tmp_path, "ok", steps=2), worker_kind="train")
     with JobClient(hub.session).watch(status.job) as w:
         assert w.wait(timeout=15).state == "succeeded"
