@@ -294,9 +294,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     scene = args.scene
     names = [n.strip() for n in args.tasks.split(",") if n.strip()]
-    if names and names[0] not in SPLIT_WORDS:
-        scene = scene_of_task(names[0])
-    tasks = resolve_tasks(scene, names)
+    try:
+        if names and names[0] not in SPLIT_WORDS:
+            scene = scene_of_task(names[0])  # task names give their scene; --scene is for the split words
+        tasks = resolve_tasks(scene, names)
+    except ValueError as err:
+        print(f"studio eval: {err}", file=sys.stderr)
+        return 2
     report = evaluate(args.checkpoint, tasks, args.episodes, args.seed, args.replan, args.workers, args.data_dir,
                       args.robot, keep=not args.no_store)
     if args.json:
