@@ -23,8 +23,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "import": ("studio.data.import_command", "import trajectories from a LeRobot v3.0 dataset"),
     "serve": ("studio.ui.serve", "start the browser studio and print its URL"),
     "quickstart": ("studio.quickstart", "collect, train and evaluate a policy on this machine, timing each stage"),
-    "results": ("studio.backend.results", "held-out evaluations of one or more policies as a Markdown table"),
-    "eval": ("studio.backend.evaluation", "imitation success on (unseen) tasks; every rollout stored"),
+    "results": ("studio.eval.results", "held-out evaluations of one or more policies as a Markdown table"),
+    "eval": ("studio.eval.evaluation", "imitation success on (unseen) tasks; every rollout stored"),
     "worker": ("studio.backend.worker", "run a sim or training worker that joins the studio's bus"),
     "hub": ("studio.backend.hub", "run the studio's bus, job queue and store without the browser UI"),
 }

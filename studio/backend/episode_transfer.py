@@ -233,8 +233,8 @@ class EpisodeShipper:
         with self._active_lock:
             self._active.add(transfer)
         try:
-            _write_durably(base.with_suffix(".payload"), payload)
-            _write_durably(base.with_suffix(".commit"), msg.encode(commit))
+            write_durably(base.with_suffix(".payload"), payload)
+            write_durably(base.with_suffix(".commit"), msg.encode(commit))
             return self._send_spooled(base)
         finally:
             with self._active_lock:
@@ -301,7 +301,9 @@ class EpisodeShipper:
                     bus.log.debug("spooled episode %s still pending: %s", commit_path.stem, e)
 
 
-def _write_durably(path: Path, data: bytes) -> None:
+def write_durably(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that after a crash the file is either absent or complete: a temporary file
+    beside it, flushed to disk, renamed over ``path``, and the directory entry flushed too."""
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
         f.write(data)

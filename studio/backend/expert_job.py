@@ -10,14 +10,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from studio.backend.job_runner import load_handler
-
 
 def run_expert_job(ctx) -> dict[str, Any]:
     """Spec: ``task``, ``seed``, ``robot`` (default ``"sawyer"``). Returns the stored episode's id."""
-    from studio.backend.rollout import _cached
-    from studio.data.collect import DEFAULT_RECORDER, MIN_FRAMES, RECORDER_OF_SCENE
+    from studio.data.collect import DEFAULT_RECORDER, MIN_FRAMES, RECORDER_OF_SCENE, load_recorder
     from studio.data.store import EpisodeStore
+    from studio.eval.planners import process_cached
     from studio.sim.env import default_image_size
     from studio.sim.tasks import get_task
 
@@ -32,7 +30,7 @@ def run_expert_job(ctx) -> dict[str, Any]:
     task = get_task(str(spec["task"]))
     robot = str(spec.get("robot", "sawyer"))
     seed = int(spec["seed"])
-    record = load_handler(RECORDER_OF_SCENE.get(task.scene, DEFAULT_RECORDER))
+    record = load_recorder(RECORDER_OF_SCENE.get(task.scene, DEFAULT_RECORDER))
     ctx.progress(0, 2, message=f"scripted {robot} expert on {task.name}, seed {seed}")
     recording = record(task.scene, robot, task.name, seed, default_image_size(task.scene), MIN_FRAMES)
     ctx.raise_if_cancelled()
@@ -40,7 +38,7 @@ def run_expert_job(ctx) -> dict[str, Any]:
         raise ValueError(
             f"the scripted expert did not succeed on {task.name} with seed {seed}; try another seed"
         )
-    store = _cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
+    store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     ctx.progress(1, 2, message="storing the demonstration")
     meta = store.add_episode(recording, role="expert", source="scripted", extra={"job": ctx.job})
     ctx.progress(2, 2, message="stored")

@@ -55,7 +55,7 @@ JOB_KINDS: dict[str, JobKind] = {
     "rollout": JobKind(
         name="rollout",
         worker_kind="sim",
-        handler="studio.backend.rollout:run_rollout_job",
+        handler="studio.backend.rollout_job:run_rollout_job",
         requeue_on_worker_loss=False,
         description="imitate one expert episode; spec: checkpoint, expert episode, task, seed, replans",
     ),

@@ -14,8 +14,9 @@ The result is written to ``<data-dir>/plans/<job>.npz`` (arrays do not belong in
 * ``latent_images``: (S, h, w, 3) uint8 decoded latent states (only with a decoder);
 * ``K``, ``T_world_cam``: the external camera.
 
-A checkpoint's decoder is found by convention (:func:`find_decoder`): ``decoder/best.pt``,
-``decoder/last.pt`` or ``decoder.pt`` next to the checkpoint, or ``<stem>.decoder.pt``.
+Planning and decoding are :mod:`studio.eval` (:func:`~studio.eval.planners.load_planner`,
+:func:`~studio.eval.latents.decode_latents`, which finds a checkpoint's decoder by convention); this module is the
+job's handler and the file it writes.
 """
 
 from __future__ import annotations
@@ -26,50 +27,9 @@ from typing import Any
 
 import numpy as np
 
+from studio.eval.latents import decode_latents, find_decoder
+
 PLANS_DIR = "plans"
-
-_DECODERS: dict[str, Any] = {}
-
-
-def find_decoder(checkpoint: str | os.PathLike) -> Path | None:
-    """The latent decoder belonging to ``checkpoint`` (see the module docstring), or None."""
-    ck = Path(checkpoint)
-    for cand in (
-        ck.parent / "decoder" / "best.pt",
-        ck.parent / "decoder" / "last.pt",
-        ck.parent / "decoder.pt",
-        ck.with_name(f"{ck.stem}.decoder.pt"),
-    ):
-        if cand.is_file():
-            return cand
-    return None
-
-
-def decode_latents(checkpoint: str | os.PathLike, pooled_states: np.ndarray) -> np.ndarray | None:
-    """(S, D) pooled latent states → (S, h, w, 3) uint8 images with the checkpoint's decoder (None: none)."""
-    path = find_decoder(checkpoint)
-    if path is None:
-        return None
-    key = f"{path}:{path.stat().st_mtime_ns}"
-    if key not in _DECODERS:
-        from studio.model.train_decoder import load_decoder
-
-        _DECODERS[key] = load_decoder(path)
-    decoder = _DECODERS[key]
-    pooled = np.asarray(pooled_states, dtype=np.float32)
-    if pooled.ndim != 2 or pooled.shape[1] != decoder.in_dim:
-        raise ValueError(
-            f"decoder {path} reads ({decoder.in_dim},) pooled states, got an array of shape {pooled.shape}"
-        )
-    return decoder.render(pooled)
-
-
-def attach_latent_images(checkpoint: str | os.PathLike, plans) -> None:
-    """Set ``latent_images`` on every plan (``rollout.PlanRecord``) that kept its pooled states, when the
-    checkpoint has a decoder: what the world model imagined, as images, for the inspector."""
-    for p in plans:
-        if p.pooled_states is not None:
-            p.latent_images = decode_latents(checkpoint, p.pooled_states)
 
 
 def expert_indices(n_frames: int, n: int = 10) -> np.ndarray:
@@ -83,7 +43,7 @@ def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "wb") as f:
-        np.savez_compressed(f, **arrays)
+        np.savez_compressed(f, allow_pickle=False, **arrays)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
@@ -94,8 +54,8 @@ def run_plan_job(ctx) -> dict[str, Any]:
     (default ``"panda"``). Returns the plan file (relative to the data dir) and a summary."""
     import time
 
-    from studio.backend.rollout import _cached, load_planner
     from studio.data.store import EpisodeStore
+    from studio.eval.planners import load_planner, process_cached
     from studio.sim.env import make_env
     from studio.sim.tasks import get_task
 
@@ -110,7 +70,7 @@ def run_plan_job(ctx) -> dict[str, Any]:
     checkpoint = str(spec["checkpoint"])
     if checkpoint != "oracle" and not Path(checkpoint).is_file():
         raise ValueError(f"checkpoint {checkpoint} does not exist on worker {ctx.worker}")
-    store = _cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
+    store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     ctx.progress(0, 3, message="resetting the scene")
     env = make_env(task.scene, robot)  # this job's own: its EGL context belongs to this thread
     try:

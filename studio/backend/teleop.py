@@ -34,7 +34,7 @@ import zenoh
 
 from studio.backend import bus, keys
 from studio.backend import messages as msg
-from studio.backend.episode_transfer import EpisodeDestination, ShipError, _write_durably, recording_payload
+from studio.backend.episode_transfer import EpisodeDestination, ShipError, recording_payload, write_durably
 from studio.backend.scene_state import body_names, pose_frame, scene_geometry
 from studio.sim.env import SimEnv, make_env
 from studio.sim.recorder import Recorder
@@ -598,7 +598,7 @@ class TeleopSession:
         try:
             self.spool_dir.mkdir(parents=True, exist_ok=True)
             path = self.spool_dir / f"unsaved-{self.id}-{int(time.time() * 1000)}.recording"
-            _write_durably(path, msg.encode(recording_payload(recording)))
+            write_durably(path, msg.encode(recording_payload(recording)))
             return str(path)
         except OSError as e:
             bus.log.error("could not even spool the recording: %s", e)

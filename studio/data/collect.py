@@ -27,9 +27,14 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING, Any
 
 from studio.data.paths import add_data_dir_argument
+from studio.data.splits import resolve_tasks
 from studio.data.store import EpisodeStore, StoreError
+
+if TYPE_CHECKING:
+    from studio.sim.recording import Recording
 
 # Headless rendering; must be set before anything imports mujoco (studio.sim.tasks does, via its scenes).
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -85,6 +90,18 @@ class CollectConfig:
         if self.recorder is None:
             self.recorder = RECORDER_OF_SCENE.get(self.scene, DEFAULT_RECORDER)
 
+    @property
+    def frame_size(self) -> tuple[int, int]:
+        """(H, W) of the stored frames: ``image_size``, which creation resolved to the scene's default if None."""
+        assert self.image_size is not None, "CollectConfig.__post_init__ sets image_size"
+        return self.image_size
+
+    @property
+    def recorder_spec(self) -> str:
+        """``recorder``, which creation resolved to the scene's scripted experts if None."""
+        assert self.recorder is not None, "CollectConfig.__post_init__ sets recorder"
+        return self.recorder
+
 
 @dataclass
 class CollectResult:
@@ -119,38 +136,17 @@ def episode_seed(base_seed: int, robot: str, task: str, index: int, attempt: int
     return int.from_bytes(digest[:4], "little") & 0x7FFFFFFF
 
 
-def resolve_tasks(scene: str, names: list[str]) -> list[str]:
-    """Expand ``all`` / ``train`` / ``test`` and check every name against the scene's task list."""
-    from studio.data.splits import load_split
-    from studio.sim.tasks import list_tasks
-
-    known = list_tasks(scene)
-    if not known:
-        raise ValueError(f"scene {scene!r} has no tasks")
-    out: list[str] = []
-    names = [n.strip() for arg in names for n in arg.split(",") if n.strip()]  # "a,b" and "a b" both work
-    for name in names:
-        if name == "all":
-            out.extend(known)
-        elif name in ("train", "test"):
-            out.extend(load_split(scene).tasks(name))
-        elif name in known:
-            out.append(name)
-        else:
-            raise ValueError(f"unknown task {name!r} for scene {scene!r}; known: {', '.join(known)}")
-    return list(dict.fromkeys(out))
-
-
 def missing_slots(store: EpisodeStore, cfg: CollectConfig, tasks: list[str]) -> list[tuple[str, int]]:
     """Slots of the run without an episode in the catalog, task by task, index by index."""
-    out = []
+    out: list[tuple[str, int]] = []
     for task in tasks:
         have = store.catalog.filled_slots(task, cfg.robot, cfg.seed)
         out.extend((task, i) for i in range(cfg.episodes) if i not in have)
     return out
 
 
-def _load_recorder(spec: str) -> Callable:
+def load_recorder(spec: str) -> Callable[..., Recording]:
+    """The recorder named ``"module:function"`` (signature of :func:`studio.sim.experts.record_expert`)."""
     module, _, name = spec.partition(":")
     return getattr(importlib.import_module(module), name)
 
@@ -161,12 +157,12 @@ _WORKER: dict = {}
 
 def _init_worker(cfg_dict: dict) -> None:
     cfg = CollectConfig(**cfg_dict)
-    recorder = _load_recorder(cfg.recorder)
+    recorder = load_recorder(cfg.recorder_spec)
     env = None
     if "env" in inspect.signature(recorder).parameters:
         from studio.sim.env import make_env
 
-        env = make_env(cfg.scene, cfg.robot, image_size=tuple(cfg.image_size))
+        env = make_env(cfg.scene, cfg.robot, image_size=cfg.frame_size)
     _WORKER.update(cfg=cfg, recorder=recorder, env=env, store=EpisodeStore(cfg.data_dir))
 
 
@@ -175,7 +171,7 @@ def _make_slot(slot: tuple[str, int]) -> tuple[str, int, bool, int, str | None]:
     cfg: CollectConfig = _WORKER["cfg"]
     task, index = slot
     failures = 0
-    kwargs = {"image_size": tuple(cfg.image_size), "min_frames": cfg.min_frames}
+    kwargs: dict[str, Any] = {"image_size": cfg.frame_size, "min_frames": cfg.min_frames}
     if _WORKER["env"] is not None:
         kwargs["env"] = _WORKER["env"]
     try:
@@ -225,7 +221,9 @@ def collect(cfg: CollectConfig) -> CollectResult:
         print(report.summary(), file=sys.stderr)
     todo = missing_slots(store, cfg, tasks)
     requested = len(tasks) * cfg.episodes
-    made, failed_attempts, missing, errors = 0, 0, [], []
+    made, failed_attempts = 0, 0
+    missing: list[tuple[str, int]] = []
+    errors: list[str] = []
     start = time.perf_counter()
     bar = tqdm(
         total=len(todo),
@@ -293,7 +291,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--tasks",
         nargs="+",
         default=["all"],
-        help="'all', 'train', 'test' or task names (space- or comma-separated), e.g. 'pick_place/cube->red'",
+        help="'all', 'train', 'test' (= 'held-out') or task names (space- or comma-separated), "
+        "e.g. 'pick_place/cube->red'",
     )
     parser.add_argument("--episodes", type=int, default=100, help="episodes per task")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes")

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 SPLITS = ("train", "val", "test")
+#: Words :func:`resolve_tasks` expands: every task of the scene, its split's training tasks, its held-out tasks.
+SPLIT_WORDS = ("all", "train", "test", "held-out")
 
 
 @dataclass(frozen=True)
@@ -111,3 +113,49 @@ def validation_ids(episode_ids: Iterable[str], fraction: float) -> set[str]:
         return set()
     k = min(max(1, round(fraction * n)), n - 1)
     return set(ids[:k])
+
+
+def scene_of_task(name: str) -> str:
+    """The scene family a task name belongs to: names are ``<scene>/<what>`` (``pick_place/cube->red``)."""
+    scene, sep, what = name.strip().partition("/")
+    if not sep or not scene or not what:
+        raise ValueError(f"task names are <scene>/<task>, e.g. 'pick_place/cube->red'; got {name!r}")
+    return scene
+
+
+def resolve_tasks(scene: str, names: str | Sequence[str]) -> list[str]:
+    """The task names ``names`` stands for in ``scene``, in order, each once.
+
+    ``names`` is one string or several, each comma-separated (``"a,b"`` and ``["a", "b"]`` are the same). Besides
+    task names of the scene, ``all`` is every task of the scene, ``train`` its split's training tasks and ``test``
+    (or ``held-out``) its held-out tasks (``studio/splits/<scene>.json``). ``studio collect`` and ``studio eval``
+    both resolve their ``--tasks`` here. Raises ValueError for a scene without tasks, a name of another scene's
+    task, an unknown name, or nothing at all.
+    """
+    from studio.sim.tasks import (
+        list_tasks,  # the registry loads the scenes (MuJoCo): only when tasks are resolved
+    )
+
+    known = list_tasks(scene)
+    if not known:
+        scenes = sorted({scene_of_task(t) for t in list_tasks()})
+        raise ValueError(f"scene {scene!r} has no tasks; scenes: {', '.join(scenes)}")
+    parts = [names] if isinstance(names, str) else list(names)
+    words = [n.strip() for part in parts for n in part.split(",") if n.strip()]
+    if not words:
+        raise ValueError(f"no tasks given for scene {scene!r}; name tasks or one of {', '.join(SPLIT_WORDS)}")
+    out: list[str] = []
+    for name in words:
+        if name == "all":
+            out.extend(known)
+        elif name in ("train", "test", "held-out"):
+            out.extend(load_split(scene).tasks("test" if name == "held-out" else name))
+        elif name in known:
+            out.append(name)
+        elif "/" in name and scene_of_task(name) != scene and name in list_tasks(scene_of_task(name)):
+            raise ValueError(f"task {name!r} belongs to scene {scene_of_task(name)!r}, not {scene!r}: "
+                             "one scene at a time")
+        else:
+            raise ValueError(f"unknown task {name!r} for scene {scene!r}; known: {', '.join(known)} "
+                             f"(or {', '.join(SPLIT_WORDS)})")
+    return list(dict.fromkeys(out))

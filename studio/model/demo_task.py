@@ -3,13 +3,14 @@
 π's outputs at the expert frames, averaged, go through a small classifier (``OSVIWM.demo_task_head``) that is
 trained to name what the demonstration shows. ``TrainConfig.demo_task_labels`` chooses the names:
 
-* ``"task"`` — one class per training task (sessions 7–9). On unseen tasks π then answers with the nearest
-  training task: push's held-out ``blue-backward`` was pushed forward like ``blue-forward`` (docs/results.md,
-  session 9).
+* ``"task"`` — one class per training task. On unseen tasks π then answers with the nearest training task:
+  push's held-out ``blue-backward`` was pushed forward like ``blue-forward`` (docs/results.md).
 * ``"parts"`` — one classifier per part of a tabletop task: the object (pick-and-place) or box (push), and the
   target zone or push direction. Every part of a held-out combination (``bar`` and ``yellow`` in
   ``bar->yellow``) was named in training, so its name is made of names π has learned; the whole-task labels
-  give it none. Meta-World tasks have no such parts.
+  give it none. Meta-World tasks have no such parts. The parts are read from the task names
+  (``pick_place/<object>-><target>``, ``push/<box>-<forward|backward>``, the names of ``studio.sim.tasks``), so
+  the model never needs the simulator's task registry.
 
 The classifier's logits are the groups' logits side by side (``ModelConfig.demo_task_groups``; one group of
 ``demo_task_classes`` when empty), and ``ModelConfig.demo_task_table`` maps a training-task index to its class in
@@ -20,11 +21,20 @@ names.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
 
 LABELLINGS = ("task", "parts")
+PUSH_DIRECTIONS = ("forward", "backward")
+
+
+class TaskParts(NamedTuple):
+    """What a tabletop task is about: the object (or box) and the target zone (or push direction)."""
+
+    obj: str
+    target: str
 
 
 def label_table(tasks: Sequence[str], labels: str) -> tuple[tuple[int, ...], tuple[tuple[int, ...], ...]]:
@@ -47,22 +57,30 @@ def class_names(tasks: Sequence[str], table: Sequence[Sequence[int]]) -> list[li
     return list(_parts([_task(name) for name in tasks]))
 
 
-def _task(name: str):
-    from studio.sim.tasks import get_task  # the registry imports the scenes (and MuJoCo): only when needed
+def task_parts(name: str) -> TaskParts | None:
+    """The object and target a tabletop task name is made of, or None for a name of another form."""
+    scene, _, what = name.partition("/")
+    if scene == "pick_place":
+        obj, sep, target = what.partition("->")
+    elif scene == "push":
+        obj, sep, target = what.rpartition("-")
+        sep = sep if target in PUSH_DIRECTIONS else ""
+    else:
+        return None
+    return TaskParts(obj, target) if sep and obj and target else None
 
-    try:
-        task = get_task(name)
-    except (KeyError, ValueError):
-        task = None
-    if not hasattr(task, "obj"):
+
+def _task(name: str) -> TaskParts:
+    parts = task_parts(name)
+    if parts is None:
         raise ValueError(
             f"demonstration-task labels 'parts' need tasks made of an object and a target; {name} is not "
             "(use train.demo_task_labels=task)"
         )
-    return task
+    return parts
 
 
-def _parts(found: Sequence) -> tuple[list[str], list[str]]:
+def _parts(found: Sequence[TaskParts]) -> tuple[list[str], list[str]]:
     """The objects and the targets of the training tasks, in order of first appearance (the classes' order)."""
     objects = list(dict.fromkeys(t.obj for t in found))
     targets = list(dict.fromkeys(t.target for t in found))

@@ -7,7 +7,7 @@ fingerprint, trained tasks, step — and drops the optimiser and scheduler state
 checkpoint). Weights are stored as float16 by default, halving the file again; they are cast back to
 float32 when loaded (``Planner.load`` copies them into float32 parameters), which moves planned waypoints
 by well under a millimetre (``tests/model/test_policy_export.py`` measures it). The decoder, when given, is
-written next to it as ``OUT.decoder.pt``, where the studio looks for it (``plan_job.find_decoder``).
+written next to it as ``OUT.decoder.pt``, where the studio looks for it (``studio.eval.latents.find_decoder``).
 This is how ``studio/policies/`` is produced.
 """
 

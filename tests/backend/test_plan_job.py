@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from studio.backend.jobs import JobClient
-from studio.backend.plan_job import expert_indices, find_decoder
+from studio.backend.plan_job import expert_indices
 from studio.data.store import EpisodeStore
 
 from .conftest import wait_worker
@@ -20,18 +20,6 @@ def test_expert_indices_keep_first_and_last():
     assert expert_indices(1, 3).tolist() == [0, 0, 0]
     with pytest.raises(ValueError, match="no frames"):
         expert_indices(0)
-
-
-def test_find_decoder_by_convention(tmp_path):
-    ck = tmp_path / "run" / "best.pt"
-    ck.parent.mkdir()
-    ck.write_bytes(b"x")
-    assert find_decoder(ck) is None
-    (tmp_path / "run" / "best.decoder.pt").write_bytes(b"x")
-    assert find_decoder(ck) == tmp_path / "run" / "best.decoder.pt"
-    (tmp_path / "run" / "decoder").mkdir()
-    (tmp_path / "run" / "decoder" / "best.pt").write_bytes(b"x")
-    assert find_decoder(ck) == tmp_path / "run" / "decoder" / "best.pt"
 
 
 def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from studio.data.collect import CollectConfig, collect, episode_seed, resolve_tasks
+from studio.data.collect import CollectConfig, collect, episode_seed
+from studio.data.splits import resolve_tasks
 from studio.data.store import EpisodeStore
 
 TASK = "pick_place/cube->red"

@@ -9,7 +9,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np
 import pytest
 
-from studio.data.collect import CollectConfig, collect, resolve_tasks
+from studio.data.collect import CollectConfig, collect
+from studio.data.splits import resolve_tasks
 from studio.data.store import EpisodeStore
 from studio.data.training_view import PairDataset
 

@@ -71,3 +71,33 @@ def test_validation_ids_stable_fraction():
     assert validation_ids(["a"], 0.5) == set()
     assert len(validation_ids(["a", "b"], 0.9)) == 1  # never all of them
     assert validation_ids(ids, 0.0) == set()
+
+
+def test_resolve_tasks_takes_split_words_and_names_as_a_string_or_a_list():
+    from studio.data.splits import resolve_tasks
+
+    held_out = ["pick_place/bar->blue", "pick_place/bar->yellow"]
+    assert resolve_tasks("pick_place", "held-out") == held_out
+    assert resolve_tasks("pick_place", ["test"]) == held_out
+    assert resolve_tasks("pick_place", "pick_place/cube->red, pick_place/bar->blue") == [
+        "pick_place/cube->red", "pick_place/bar->blue"]
+    assert resolve_tasks("pick_place", ["pick_place/cube->red,test", "pick_place/cube->red"]) == [
+        "pick_place/cube->red", *held_out]  # each task once, in order
+    assert len(resolve_tasks("pick_place", "all")) == 16
+    assert len(resolve_tasks("push", "train")) == len(load_split("push").train)
+
+
+def test_resolve_tasks_errors_say_what_is_wrong():
+    from studio.data.splits import resolve_tasks, scene_of_task
+
+    with pytest.raises(ValueError, match="unknown task 'pick_place/ball->red' for scene 'pick_place'"):
+        resolve_tasks("pick_place", "pick_place/ball->red")
+    with pytest.raises(ValueError, match="belongs to scene 'push', not 'pick_place'"):
+        resolve_tasks("pick_place", "pick_place/cube->red,push/red-forward")
+    with pytest.raises(ValueError, match="scene 'kitchen' has no tasks"):
+        resolve_tasks("kitchen", "all")
+    with pytest.raises(ValueError, match="no tasks given"):
+        resolve_tasks("pick_place", " , ")
+    assert scene_of_task("metaworld/button-press-v3") == "metaworld"
+    with pytest.raises(ValueError, match="<scene>/<task>"):
+        scene_of_task("cube->red")

@@ -65,3 +65,14 @@ def test_class_names_read_the_classes_back():
     push = load_split("push").tasks("train")
     assert class_names(push, label_table(push, "parts")[1]) == [["red", "blue"], ["forward", "backward"]]
     assert class_names(push, ()) == [["red-forward", "red-backward", "blue-forward"]]
+
+
+def test_task_parts_read_from_the_names_match_the_simulators_tasks():
+    from studio.model.demo_task import task_parts
+    from studio.sim.tasks import get_task, list_tasks
+
+    for name in list_tasks("pick_place") + list_tasks("push"):
+        task = get_task(name)
+        assert task_parts(name) == (task.obj, task.target), name
+    assert task_parts("metaworld/button-press-v3") is None
+    assert task_parts("push/red-sideways") is None and task_parts("pick_place/cube") is None

@@ -7,8 +7,8 @@ import pytest
 import torch
 from synthetic_pairs import SyntheticPairs, tiny_run_config
 
-from studio.backend.plan_job import find_decoder
 from studio.cli import main
+from studio.eval.latents import find_decoder
 from studio.model.config import DecoderConfig
 from studio.model.planner import Planner
 from studio.model.policy_export import export_policy

@@ -64,7 +64,7 @@ def test_the_shipped_policy_grasps_the_demonstrated_object_wherever_it_lies(poli
     """Objects are shuffled in every scene, so one demonstration must lead to different grasp points in different
     scenes: the nearest object to the grasp is the demonstrated one (chance: one in four), not whatever lies where
     the demonstration grasped."""
-    from studio.model.plan_bench import grasp_and_release, task_object
+    from studio.bench.plan import grasp_and_release, task_object
     from studio.model.planner import Planner
     from studio.sim.env import SimEnv
 

@@ -79,7 +79,7 @@ def test_push_success_predicate(env_factory):
 def test_breakdown_counts_a_grasp_that_happened_even_if_the_object_was_let_go_elsewhere(env_factory):
     """The paper's breakdown (reached, grasped, placed) records what happened during the episode: an object
     carried to the wrong spot and released was grasped — it fails at the place stage, not at the grasp."""
-    from studio.backend.rollout import failure_stage
+    from studio.eval.rollout import failure_stage
     from studio.sim.experts import expert_waypoints
     from studio.sim.waypoints import ControllerConfig, WaypointController
 

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from studio.backend import bus
-from studio.ui.bench import CHROMIUM, CHROMIUM_ARGS, WEBGL_ARGS
+from studio.bench.ui import CHROMIUM, CHROMIUM_ARGS, WEBGL_ARGS
 
 THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window);
   window.requestAnimationFrame = (cb) => setTimeout(() => raf(cb), 200); })();"""
@@ -107,9 +107,10 @@ def data_dir(tmp_path_factory):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
     from data_fixtures import make_recording
 
-    from studio.backend.rollout import OraclePlanner, run_rollout, store_rollout
     from studio.data.catalog import CheckpointRecord, RunRecord
     from studio.data.store import EpisodeStore
+    from studio.eval.oracle import OraclePlanner
+    from studio.eval.rollout import run_rollout, store_rollout
     from studio.sim.env import SimEnv
 
     root = tmp_path_factory.mktemp("studio") / "data"

@@ -8,10 +8,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np
 import pytest
 
-from studio.backend.evaluation import evaluate, make_jobs, resolve_tasks
-from studio.backend.rollout import OraclePlanner, failure_stage, run_rollout
 from studio.data.collect import CollectConfig, collect
+from studio.data.splits import resolve_tasks
 from studio.data.store import EpisodeStore
+from studio.eval.evaluation import evaluate, make_jobs
+from studio.eval.oracle import OraclePlanner
+from studio.eval.rollout import failure_stage, run_rollout
 from studio.sim.env import SimEnv
 
 
@@ -71,9 +73,9 @@ def test_failure_stage_order():
 def test_jobs_are_deterministic_and_tasks_resolve():
     assert make_jobs(["a", "b"], 3, 7) == make_jobs(["a", "b"], 3, 7)
     assert make_jobs(["a"], 3, 7) != make_jobs(["a"], 3, 8)
-    assert resolve_tasks("held-out", "pick_place") == ["pick_place/bar->blue", "pick_place/bar->yellow"]
+    assert resolve_tasks("pick_place", "held-out") == ["pick_place/bar->blue", "pick_place/bar->yellow"]
     with pytest.raises(ValueError, match="unknown task"):
-        resolve_tasks("pick_place/ball->red", "pick_place")
+        resolve_tasks("pick_place", "pick_place/ball->red")
 
 
 def test_evaluation_is_deterministic_and_stores_rollouts(tmp_path):
@@ -137,7 +139,7 @@ def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
 
 def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_path):
     """`with_budget` gives exactly what evaluating with fewer re-plans gives (same seeds, same episodes)."""
-    from studio.backend.evaluation import with_budget
+    from studio.eval.evaluation import with_budget
 
     root = tmp_path / "data"
     collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue"], episodes=1,

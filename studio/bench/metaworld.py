@@ -94,14 +94,13 @@ def _policy_rates(tasks: list[str], seeds: int) -> dict:
     finally:
         env.close()
     seconds = time.perf_counter() - t0
-    rates = [v["success"] for v in per_task.values()]
+    rates = {t: float(v["success"] or 0.0) for t, v in per_task.items()}  # success is always a number
+    ticks = [float(v["mean_ticks"]) for v in per_task.values() if v["mean_ticks"]]
     return {
         "seeds": seeds,
-        "mean_success": round(float(np.mean(rates)), 3),
-        "below_100": {t: v["success"] for t, v in per_task.items() if v["success"] < 1.0},
-        "mean_ticks": round(
-            float(np.mean([v["mean_ticks"] for v in per_task.values() if v["mean_ticks"]])), 1
-        ),
+        "mean_success": round(float(np.mean(list(rates.values()))), 3),
+        "below_100": {t: r for t, r in rates.items() if r < 1.0},
+        "mean_ticks": round(float(np.mean(ticks)), 1),
         "episodes_per_min_unrecorded": round(60 * seeds * len(tasks) / seconds, 1),
         "per_task": per_task,
     }
@@ -135,7 +134,7 @@ def _collect_rate(tasks: list[str], args: argparse.Namespace, workers: int) -> d
 
 
 def measure(args: argparse.Namespace) -> dict:
-    from studio.data.collect import resolve_tasks
+    from studio.data.splits import resolve_tasks
 
     tasks = resolve_tasks("metaworld", list(args.tasks))
     out: dict = {"tasks": len(tasks), "image_size": list(args.image_size), "cpu_count": os.cpu_count()}

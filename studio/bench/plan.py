@@ -14,7 +14,7 @@ open one after it). Reported, per task and over all:
 * ``release_err_m`` — median distance from the release point to where the agent's scripted expert released.
 * ``scene_dependence`` — one demonstration planned against every scene: the spread (std, xy) of the grasp point
   divided by the spread of the task's object over those scenes. 1 when the grasp follows the object, 0 when the
-  plan ignores the agent's frame (what session 5 measured by hand, docs/results.md).
+  plan ignores the agent's frame (the failure docs/results.md first measured by hand).
 * ``named`` — for a checkpoint trained with the demonstration-task loss (``demo_task``), what its head calls the
   demonstrations used, counted: a training task's name, or the object and the target. On a held-out task it
   shows whether the demonstration was read as its own parts or as the nearest training task.
@@ -94,12 +94,12 @@ def _demonstration(store, meta, obj: str, mirror: bool, cache: dict) -> tuple[np
 def measure(args: argparse.Namespace) -> dict:
     import torch
 
-    from studio.backend.evaluation import resolve_tasks
+    from studio.data.splits import resolve_tasks
     from studio.data.store import EpisodeStore
     from studio.model.planner import Planner
 
     torch.set_num_threads(args.threads)
-    tasks = resolve_tasks(args.tasks, args.scene)
+    tasks = resolve_tasks(args.scene, args.tasks)
     planner = Planner.load(args.checkpoint)
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
@@ -144,8 +144,10 @@ def measure(args: argparse.Namespace) -> dict:
                     rows["grasp"].append(float(np.linalg.norm(target - grasp)))
                     rows["demo"].append(float(np.linalg.norm(demo_object - grasp)))
                 scripted = scripted_release(agent.arrays)
-                ok = release is not None and scripted is not None
-                rows["release"].append(float(np.linalg.norm(release - scripted)) if ok else None)
+                if release is None or scripted is None:
+                    rows["release"].append(None)
+                else:
+                    rows["release"].append(float(np.linalg.norm(release - scripted)))
                 fixed, _ = grasp_and_release(plan(experts[0], agent))
                 if fixed is not None:
                     fixed_grasps.append(fixed)

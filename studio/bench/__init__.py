@@ -1,4 +1,9 @@
-"""`studio bench TARGET`: dispatches to the benchmark that lives with the code it measures."""
+"""`studio bench TARGET`: the benchmarks, one module per target, and the command that dispatches to them.
+
+Benchmarks measure the product (simulation and rendering rates, model throughput, collection speed, bus latency,
+what a plan depends on) and print one JSON object. They sit above every other package: a benchmark may drive the
+simulator, the model, the store, the bus or the browser UI, and nothing in the product imports a benchmark.
+"""
 
 from __future__ import annotations
 
@@ -9,14 +14,14 @@ import sys
 
 # target -> module exposing add_arguments(parser) and measure(args) -> dict
 TARGETS: dict[str, str] = {
-    "sim": "studio.sim.bench",
-    "model": "studio.model.bench",
-    "follow": "studio.model.follow_bench",
-    "plan": "studio.model.plan_bench",
-    "collect": "studio.data.bench",
-    "bus": "studio.backend.bench",
-    "metaworld": "studio.sim.metaworld_bench",
-    "ui": "studio.ui.bench",
+    "sim": "studio.bench.sim",
+    "model": "studio.bench.model",
+    "follow": "studio.bench.follow",
+    "plan": "studio.bench.plan",
+    "collect": "studio.bench.collect",
+    "bus": "studio.bench.bus",
+    "metaworld": "studio.bench.metaworld",
+    "ui": "studio.bench.ui",
 }
 
 

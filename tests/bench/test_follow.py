@@ -7,7 +7,7 @@ import argparse
 import numpy as np
 import pytest
 
-from studio.model import follow_bench
+from studio.bench import follow as follow_bench
 
 
 def _args(*argv: str) -> argparse.Namespace:
@@ -31,7 +31,7 @@ def test_unknown_variant_is_a_clear_error():
 
 
 def test_match_task_shuffles_markers_and_the_path_ends_at_the_demonstrated_colour():
-    from studio.model.synthetic_task import TARGETS_CAM, SyntheticPairs
+    from studio.bench.synthetic_task import TARGETS_CAM, SyntheticPairs
 
     data = SyntheticPairs(n_tasks=4, episodes_per_task=6, shuffle_targets=True)
     assert data.fingerprint() != SyntheticPairs(n_tasks=4, episodes_per_task=6).fingerprint()

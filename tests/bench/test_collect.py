@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from studio.data import bench
+from studio.bench import collect as bench
 
 
 def test_collect_bench_tiny():

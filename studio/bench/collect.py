@@ -16,7 +16,8 @@ import os
 import tempfile
 import time
 
-from studio.data.collect import CollectConfig, collect, resolve_tasks
+from studio.data.collect import CollectConfig, collect
+from studio.data.splits import resolve_tasks
 
 FULL_SET_EPISODES = 14 * 100 * 2
 
@@ -73,8 +74,8 @@ def _loader_rate(root: str, args: argparse.Namespace) -> dict:
         root, split="train", scene=args.scene, image_size=tuple(args.train_size), seed=args.seed
     )
     cache_s = time.perf_counter() - t0
-    loader = torch.utils.data.DataLoader(
-        dataset,
+    loader: torch.utils.data.DataLoader = torch.utils.data.DataLoader(
+        dataset,  # type: ignore[arg-type]  # a map-style dataset by protocol (__len__, __getitem__), not a subclass
         batch_size=args.batch_size,
         sampler=torch.utils.data.RandomSampler(dataset, replacement=True, num_samples=10**9),
         num_workers=args.loader_workers,

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
+from studio.bench import plan as plan_bench
 from studio.cli import main
 from studio.data.paths import SHIPPED_POLICY_DIR
-from studio.model import plan_bench
 
 torch.set_num_threads(1)
 TASK = "pick_place/bar->blue"

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from studio.data.paths import add_data_dir_argument
+from studio.data.splits import SPLIT_WORDS, resolve_tasks, scene_of_task
 
 
 @dataclass
@@ -57,23 +58,6 @@ class RolloutSummary:
     attempt_planning_s: list[float] = field(default_factory=list)
 
 
-def resolve_tasks(spec: str, scene: str) -> list[str]:
-    """``held-out`` (the split's test tasks), ``train``, ``all``, or comma-separated task names."""
-    from studio.data.splits import load_split
-    from studio.sim.tasks import get_task, list_tasks
-
-    if spec in ("held-out", "test"):
-        return list(load_split(scene).test)
-    if spec == "train":
-        return list(load_split(scene).train)
-    if spec == "all":
-        return list_tasks(scene)
-    names = [t.strip() for t in spec.split(",") if t.strip()]
-    for n in names:
-        get_task(n)  # raises a clear error for unknown names
-    return names
-
-
 def make_jobs(tasks: list[str], episodes: int, seed: int) -> list[EvalJob]:
     """Deterministic (task, index) -> scene seed and demonstration-choice seed."""
     jobs = []
@@ -97,7 +81,7 @@ def _init_worker(checkpoint: str, data_dir: str, scene: str, robot: str, threads
     _W["store"] = EpisodeStore(data_dir)
     _W["env"] = make_env(scene, robot)
     if checkpoint == "oracle":
-        from studio.backend.rollout import OraclePlanner
+        from studio.eval.oracle import OraclePlanner
 
         _W["planner"] = OraclePlanner(_W["env"])
     else:
@@ -128,7 +112,8 @@ def _expert_choices(store, task: str) -> list[str]:
 
 
 def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None, keep: bool) -> RolloutSummary:
-    from studio.backend.rollout import run_rollout, store_rollout
+    from studio.eval.latents import attach_latent_images
+    from studio.eval.rollout import run_rollout, store_rollout
 
     store, env, planner = _W["store"], _W["env"], _W["planner"]
     choices = _expert_choices(store, job.task)
@@ -138,8 +123,6 @@ def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None,
         planner.clear_cache()
     out = run_rollout(env, planner, expert_frames, job.task, job.env_seed, replans=replan)
     if keep and _W["checkpoint"] != "oracle":
-        from studio.backend.plan_job import attach_latent_images
-
         attach_latent_images(_W["checkpoint"], out.plans)
     record = store_rollout(store, out, expert_episode_id=expert_id, checkpoint_id=checkpoint_id, eval_id=eval_id,
                            keep=keep, extra={"index": job.index})
@@ -187,7 +170,7 @@ def with_budget(report: dict, replan: int, tasks: Collection[str] | None = None)
     ``tasks`` limits the cut to those tasks' rollouts, the others keep the full budget: the paper's Meta-World
     protocol, which re-plans on the hard tasks only, is ``with_budget(report, 0, easy_tasks)``.
     """
-    from studio.backend.rollout import failure_stage
+    from studio.eval.rollout import failure_stage  # the simulator: loaded only when a budget is derived
 
     if replan > report["replan"]:
         raise ValueError(f"cannot derive {replan} re-plans from an evaluation with {report['replan']}")
@@ -294,8 +277,10 @@ def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--checkpoint", required=True, help="checkpoint file, or 'oracle' for the execution ceiling")
-    parser.add_argument("--tasks", default="held-out", help="held-out | train | all | comma-separated task names")
-    parser.add_argument("--scene", default="pick_place", help="scene whose split 'held-out' refers to")
+    parser.add_argument("--tasks", default="held-out",
+                        help="held-out (= test) | train | all | comma-separated task names of one scene")
+    parser.add_argument("--scene", default="pick_place",
+                        help="scene whose split 'held-out' refers to (task names give their own scene)")
     parser.add_argument("--episodes", type=int, default=10, help="rollouts per task")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--replan", type=int, default=0, help="re-plans allowed inside an episode on failure")
@@ -308,11 +293,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     scene = args.scene
-    if args.tasks not in ("held-out", "test", "train", "all"):
-        from studio.sim.tasks import get_task
-
-        scene = get_task(args.tasks.split(",")[0].strip()).scene
-    tasks = resolve_tasks(args.tasks, scene)
+    names = [n.strip() for n in args.tasks.split(",") if n.strip()]
+    try:
+        if names and names[0] not in SPLIT_WORDS:
+            scene = scene_of_task(names[0])  # task names give their scene; --scene is for the split words
+        tasks = resolve_tasks(scene, names)
+    except ValueError as err:
+        print(f"studio eval: {err}", file=sys.stderr)
+        return 2
     report = evaluate(args.checkpoint, tasks, args.episodes, args.seed, args.replan, args.workers, args.data_dir,
                       args.robot, keep=not args.no_store)
     if args.json:

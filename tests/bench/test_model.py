@@ -6,7 +6,7 @@ import argparse
 
 import torch
 
-from studio.model import bench
+from studio.bench import model as bench
 
 torch.set_num_threads(1)
 

@@ -99,7 +99,7 @@ def measure(args: argparse.Namespace) -> dict:
             t_start = time.perf_counter()
             angle = 2 * np.pi * i / 120.0
             target = centre + 0.05 * np.array([np.cos(angle) - 1.0, np.sin(angle), 0.0])
-            seq = client.set_target(target, 0.0)
+            seq = client.set_target(target.tolist(), 0.0)
             frame = client.wait_ack(seq, timeout=1.0)
             if frame is None:
                 missed += 1
@@ -113,8 +113,8 @@ def measure(args: argparse.Namespace) -> dict:
         n_bytes, n_frames = 0, 0
         t0 = time.perf_counter()
         while time.perf_counter() - t0 < args.seconds:
-            frame = client.request_frame(encoding="raw")
-            n_bytes += len(frame.data)
+            image = client.request_frame(encoding="raw")
+            n_bytes += len(image.data)
             n_frames += 1
         img_elapsed = time.perf_counter() - t0
         return {

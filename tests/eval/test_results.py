@@ -6,9 +6,9 @@ import argparse
 
 import pytest
 
-from studio.backend.evaluation import RolloutSummary, summarise
-from studio.backend.results import budget_rows, json_rows, parse_policy, render_markdown
 from studio.data.splits import load_split
+from studio.eval.evaluation import RolloutSummary, summarise
+from studio.eval.results import budget_rows, json_rows, parse_policy, render_markdown
 
 MW_TASKS = ("metaworld/button-press-v3", "metaworld/pick-place-wall-v3", "metaworld/window-open-v3",
             "metaworld/door-unlock-v3")  # fmt: skip

@@ -202,7 +202,10 @@ def measure(args: argparse.Namespace) -> dict:
                     teleop.open()
                     _until(lambda: teleop.info is not None and teleop.info.scene == args.scene, 180, "the session")
                 faces = tab.view.faces_shown
-                center = np.asarray(teleop.client.latest_pose().ee_pos, dtype=np.float64)
+                pose = teleop.client.latest_pose() if teleop.client is not None else None
+                if pose is None:
+                    raise RuntimeError("the teleop session is open but has sent no pose")
+                center = np.asarray(pose.ee_pos, dtype=np.float64)
                 time.sleep(1.0)
                 app.stats.reset()
                 pushes0 = tab.pose_pushes

@@ -6,7 +6,7 @@ between, depth varying around 1 m), with the gripper closing half way. Expert ep
 episodes a red one, so the agent's first frame does not tell the target: only the demonstration does. Samples
 follow the "Training sample" contract of studio.data (uint8 frames (T, 3, H, W), path (P, 4) in the camera
 frame, K at (H, W)) with configurable N, M, P and image size. Nothing is written to disk. Used by the model tests
-and by `studio bench follow` (``follow_bench``), which checks in seconds whether an architecture learns to read
+and by `studio bench follow` (:mod:`studio.bench.follow`), which checks in seconds whether an architecture learns to read
 demonstrations at all.
 
 With ``shuffle_targets=True`` (the *match* variant) every episode places the four coloured markers in its own
@@ -18,6 +18,7 @@ pick-and-place (objects are shuffled there); copying the demonstration's end poi
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -43,7 +44,7 @@ class SyntheticPairs:
         self.seed = seed if split == "train" else seed + 1000
         self.n_tasks = n_tasks
         self.shuffle_targets = shuffle_targets
-        self.tasks = [f"synthetic/target{t}" for t in range(n_tasks)]
+        self.tasks: Sequence[str] = [f"synthetic/target{t}" for t in range(n_tasks)]
         f = 0.9 * self.w
         self.K = np.array([[f, 0, self.w / 2], [0, f, self.h / 2], [0, 0, 1]], dtype=np.float32)
         self.T_world_cam = np.eye(4, dtype=np.float32)
@@ -55,7 +56,7 @@ class SyntheticPairs:
             for a in range(episodes_per_task)
         ]
         self.expert_indices = np.array([t * episodes_per_task + e for t, e, _ in self.pairs])
-        self._key = (n_tasks, episodes_per_task, image_size, n_expert, n_agent, path_points, self.seed)
+        self._key: tuple[object, ...] = (n_tasks, episodes_per_task, image_size, n_expert, n_agent, path_points, self.seed)
         if shuffle_targets:
             self._key += ("shuffled",)
 

@@ -54,7 +54,7 @@ def measure(args: argparse.Namespace) -> dict:
 
     import torch
 
-    from studio.model.synthetic_task import SyntheticPairs, tiny_run_config
+    from studio.bench.synthetic_task import SyntheticPairs, tiny_run_config
     from studio.model.train import train
 
     names = [v.strip() for v in args.variants.split(",") if v.strip()]
@@ -100,6 +100,6 @@ def _mean_target_error() -> float:
     """Final-point error of always predicting the mean of the four targets (validation episodes)."""
     import numpy as np
 
-    from studio.model.synthetic_task import TARGETS_CAM
+    from studio.bench.synthetic_task import TARGETS_CAM
 
     return round(float(np.mean(np.linalg.norm(TARGETS_CAM - TARGETS_CAM.mean(0), axis=1))), 4)

@@ -22,8 +22,7 @@ from typing import Protocol
 
 import numpy as np
 
-from studio.sim.env import SimEnv, make_env
-from studio.sim.experts import expert_waypoints
+from studio.sim.env import SimEnv
 from studio.sim.recorder import Recorder
 from studio.sim.recording import Recording
 from studio.sim.waypoints import ControllerConfig, WaypointController
@@ -85,44 +84,6 @@ def failure_stage(stages: dict[str, bool]) -> str | None:
         if not stages.get(s):
             return FAILURE_NAMES[s]
     return "place"
-
-
-class OraclePlanner:
-    """Plans from the simulator's true state (the scripted expert's waypoints): the execution ceiling.
-
-    It ignores the images; evaluation reports it as an upper bound for what the controller can do
-    with perfect waypoints, never as a result of the model. On the tabletop the waypoints are our experts'
-    for the current state; on Meta-World they are five points along the scripted policy's own episode from the
-    same reset (``studio.sim.metaworld_experts.expert_waypoints``), so a re-plan repeats the first plan.
-    """
-
-    def __init__(self, env: SimEnv):
-        if env.scene not in ("pick_place", "push", "metaworld"):
-            raise ValueError(f"the oracle planner knows the tabletop and Meta-World scenes, not {env.scene!r}")
-        self.env = env
-        self._scratch = None
-
-    def _waypoints(self) -> np.ndarray:
-        if self.env.scene != "metaworld":
-            return expert_waypoints(self.env)
-        from studio.sim.metaworld_env import MetaWorldEnv
-        from studio.sim.metaworld_experts import expert_waypoints as metaworld_waypoints
-
-        if self._scratch is None:
-            self._scratch = MetaWorldEnv(image_size=(32, 32))
-        return metaworld_waypoints(self.env.task.name, self.env.seed, scratch=self._scratch)
-
-    def plan(self, expert_frames, agent_frame, K, T_world_cam):
-        wps = self._waypoints()
-        cam = self.env.camera_model()
-        return type("OraclePlan", (), {"waypoints_world": wps,
-                                       "waypoints_cam": np.column_stack([cam.world_to_cam(wps[:, :3]), wps[:, 3]]),
-                                       "latent_states": None, "pooled_states": None})()
-
-    def close(self) -> None:
-        if self._scratch is not None:
-            self._scratch.close()
-            self._scratch = None
 
 
 def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, task: str, seed: int, *,
@@ -223,7 +184,7 @@ def store_rollout(store, out: RolloutOutcome, *, expert_episode_id: str | None, 
                 arrays[f"plan{i}_latent_images"] = np.asarray(p.latent_images, dtype=np.uint8)
         arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
         arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
-        np.savez_compressed(tmp / "plans.npz", **arrays)
+        np.savez_compressed(tmp / "plans.npz", allow_pickle=False, **arrays)
         (tmp / "events.json").write_text(json.dumps(out.events, default=float))
         os.replace(tmp, folder)
         path = str(folder)
@@ -235,129 +196,3 @@ def store_rollout(store, out: RolloutOutcome, *, expert_episode_id: str | None, 
         extra={"stages": out.stages, **(extra or {})},
     )
     return store.add_rollout(record, out.recording if keep else None)
-
-
-# ---------------------------------------------------------------------------------------------- job handler
-_JOB_CACHE: dict = {}
-
-
-def _cached(key, make):
-    if key not in _JOB_CACHE:
-        _JOB_CACHE[key] = make()
-    return _JOB_CACHE[key]
-
-
-def load_planner(checkpoint: str, env: SimEnv):
-    """``oracle`` or a checkpoint path (models are cached per worker process)."""
-    if checkpoint == "oracle":
-        return OraclePlanner(env)
-
-    def make():
-        from studio.model.planner import Planner
-
-        return Planner.load(checkpoint)
-
-    return _cached(("planner", checkpoint), make)
-
-
-def run_rollout_job(ctx) -> dict:
-    """The ``rollout`` job of a sim worker.
-
-    Spec: ``checkpoint`` (path or ``"oracle"``), ``expert_episode_id``, ``task``, ``seed``, ``replans``
-    (default 0), ``robot`` (default ``"panda"``), ``checkpoint_id`` (the catalog id stored with the rollout;
-    default: the file registered as ``<run-dir>/<name>``, see ``evaluation.register_checkpoint``), ``speed`` (simulated seconds per wall-clock second,
-    default 1 = real time so viewers see it live; 0 = as fast as possible). Streams progress (planning, waypoint i of 5, grasp
-    correction, re-planning, outcome) and body poses at ≤ 30 Hz, stores the rollout and returns its summary.
-    """
-    import time as _time
-
-    from studio.backend.scene_state import pose_frame
-    from studio.data.store import EpisodeStore
-    from studio.sim.tasks import get_task
-
-    spec = dict(ctx.spec)
-    missing = [k for k in ("checkpoint", "expert_episode_id", "task", "seed") if k not in spec]
-    if missing:
-        raise ValueError(f"rollout job spec lacks {missing}")
-    task = get_task(str(spec["task"]))
-    robot = str(spec.get("robot", "sawyer" if task.scene == "metaworld" else "panda"))
-    replans = int(spec.get("replans", 0))
-    if ctx.data_dir is None:
-        raise ValueError("rollout jobs need a worker started with --data-dir (the store with the demonstration)")
-    store = _cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
-    # One simulator per job, closed by the job's own thread: an EGL context current in one (still living)
-    # thread cannot be made current in another, so a simulator shared across job threads fails to render.
-    env = make_env(task.scene, robot)
-    try:
-        planner = load_planner(str(spec["checkpoint"]), env)
-        if hasattr(planner, "clear_cache"):
-            planner.clear_cache()
-        expert_frames = store.load_frames(str(spec["expert_episode_id"]))
-        speed = float(spec.get("speed", 1.0))
-        if speed < 0:
-            raise ValueError(f"rollout job speed must be >= 0, got {speed}")
-        total_ticks = [0]
-        last_pose = [0.0]
-        seq = [0]
-
-        def on_event(kind: str, info: dict) -> None:
-            if kind == "waypoint":
-                msg = f"waypoint {info['index'] + 1} of {info['total']}"
-            elif kind == "grasp_correction":
-                msg = f"grasp correction {info['iteration']}/3" + ("" if info.get("found") else " (nothing seen)")
-            elif kind == "replanning":
-                msg = f"re-planning ({info['attempt']} of {info['of']})"
-            elif kind == "planning":
-                msg = "planning"
-            elif kind == "planned":
-                # The plan's waypoints ride along as metrics (wp<i>_x/y/z/g) so viewers can draw every re-plan live.
-                wps = np.asarray(info["waypoints"], dtype=float).reshape(-1, 4)
-                metrics = {f"wp{i}_{c}": float(v) for i, row in enumerate(wps) for c, v in zip("xyzg", row)}
-                ctx.progress(total_ticks[0], message=f"planned ({info['attempt'] + 1})", **metrics)
-                return
-            elif kind == "outcome":
-                msg = "success" if info["success"] else f"failed at {info['failure_stage']}"
-            else:
-                return
-            ctx.progress(total_ticks[0], message=msg)
-
-        wall_start: list[float] = []
-
-        def on_tick() -> None:
-            total_ticks[0] += 1
-            now = _time.monotonic()
-            if speed > 0:  # paced for watching: simulated time runs at `speed` x wall time
-                if not wall_start:
-                    wall_start.append(now - env.data.time / speed)
-                ahead = wall_start[0] + env.data.time / speed - now
-                if ahead > 0:
-                    ctx.wait_cancelled(ahead)
-                    now = _time.monotonic()
-            if now - last_pose[0] >= 1 / 30:
-                last_pose[0] = now
-                seq[0] += 1
-                ctx.poses(pose_frame(env.data, seq=seq[0], step=env.steps, ack_seq=0, ee_pos=env.ee_pos,
-                                     gripper=env.gripper_cmd))
-
-        out = run_rollout(env, planner, expert_frames, task.name, int(spec["seed"]), replans=replans,
-                          on_event=on_event, on_tick=on_tick, should_stop=lambda: ctx.cancelled)
-        ctx.raise_if_cancelled()
-        checkpoint = str(spec["checkpoint"])
-        if checkpoint != "oracle":
-            # Decoded here, where the model lives, so that viewers (the UI) never need torch.
-            from studio.backend.plan_job import attach_latent_images
-
-            attach_latent_images(checkpoint, out.plans)
-        checkpoint_id = spec.get("checkpoint_id")
-        if checkpoint != "oracle" and not checkpoint_id:
-            from studio.backend.evaluation import register_checkpoint
-
-            checkpoint_id = register_checkpoint(store.root, checkpoint)
-        record = store_rollout(store, out, expert_episode_id=str(spec["expert_episode_id"]),
-                               checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
-                               extra={"job": ctx.job, "checkpoint": checkpoint})
-        return {"rollout_id": record.id, "success": out.success, "failure_stage": out.failure_stage,
-                "replans": out.replans, "planning_time_s": out.planning_time_s, "episode_id": record.episode_id,
-                "stages": out.stages}
-    finally:
-        env.close()

@@ -22,9 +22,9 @@ import platform
 import sys
 from pathlib import Path
 
-from studio.backend.evaluation import evaluate, resolve_tasks, with_budget
 from studio.data.paths import add_data_dir_argument
-from studio.data.splits import SplitSpec, load_split
+from studio.data.splits import SplitSpec, load_split, resolve_tasks
+from studio.eval.evaluation import evaluate, with_budget
 
 
 def parse_policy(spec: str) -> tuple[str, str]:
@@ -100,7 +100,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    tasks = resolve_tasks("held-out", args.scene)
+    tasks = resolve_tasks(args.scene, "held-out")
     split = load_split(args.scene)
     reports: list[tuple[str, int | str, dict]] = []
     # One evaluation per policy at the largest budget; the smaller budgets are its rollouts cut after fewer attempts.

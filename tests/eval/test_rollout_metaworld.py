@@ -12,7 +12,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np
 import pytest
 
-from studio.backend.rollout import OraclePlanner, run_rollout
+from studio.eval.oracle import OraclePlanner
+from studio.eval.rollout import run_rollout
 from studio.sim.metaworld_env import MetaWorldEnv
 from studio.sim.metaworld_experts import expert_waypoints
 

@@ -134,7 +134,8 @@ def measure(args: argparse.Namespace) -> dict:
     torch.manual_seed(0)
     model = OSVIWM(mc).to(device)
     g = torch.Generator().manual_seed(0)
-    n, m, size = mc.n_expert_frames, mc.n_agent_frames, tuple(mc.image_size)
+    n, m = mc.n_expert_frames, mc.n_agent_frames
+    size = (int(mc.image_size[0]), int(mc.image_size[1]))
     planner = Planner(model, device, args.precision)
     expert = np.random.default_rng(0).integers(0, 256, (n, *size, 3), dtype=np.uint8)
     K = np.array([[0.9 * size[1], 0, size[1] / 2], [0, 0.9 * size[1], size[0] / 2], [0, 0, 1]])

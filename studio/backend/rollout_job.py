@@ -1,0 +1,115 @@
+"""The ``rollout`` job of a sim worker: one imitation rollout, streamed live to the bus and stored.
+
+A thin handler: the rollout itself is :func:`studio.eval.rollout.run_rollout`; this module turns the job's spec into
+its arguments, its events into job progress and body poses, paces it for watching, and stores the outcome.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from studio.backend.scene_state import pose_frame
+from studio.data.store import EpisodeStore
+from studio.eval.evaluation import register_checkpoint
+from studio.eval.latents import attach_latent_images
+from studio.eval.planners import load_planner, process_cached
+from studio.eval.rollout import run_rollout, store_rollout
+from studio.sim.env import make_env
+from studio.sim.tasks import get_task
+
+
+def run_rollout_job(ctx) -> dict:
+    """The ``rollout`` job of a sim worker.
+
+    Spec: ``checkpoint`` (path or ``"oracle"``), ``expert_episode_id``, ``task``, ``seed``, ``replans``
+    (default 0), ``robot`` (default ``"panda"``), ``checkpoint_id`` (the catalog id stored with the rollout;
+    default: the file registered as ``<run-dir>/<name>``, see
+    :func:`studio.eval.evaluation.register_checkpoint`), ``speed`` (simulated seconds per wall-clock second,
+    default 1 = real time so viewers see it live; 0 = as fast as possible). Streams progress (planning, waypoint
+    i of 5, grasp correction, re-planning, outcome) and body poses at ≤ 30 Hz, stores the rollout and returns its
+    summary.
+    """
+    spec = dict(ctx.spec)
+    missing = [k for k in ("checkpoint", "expert_episode_id", "task", "seed") if k not in spec]
+    if missing:
+        raise ValueError(f"rollout job spec lacks {missing}")
+    task = get_task(str(spec["task"]))
+    robot = str(spec.get("robot", "sawyer" if task.scene == "metaworld" else "panda"))
+    replans = int(spec.get("replans", 0))
+    if ctx.data_dir is None:
+        raise ValueError("rollout jobs need a worker started with --data-dir (the store with the demonstration)")
+    store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
+    # One simulator per job, closed by the job's own thread: an EGL context current in one (still living)
+    # thread cannot be made current in another, so a simulator shared across job threads fails to render.
+    env = make_env(task.scene, robot)
+    try:
+        planner = load_planner(str(spec["checkpoint"]), env)
+        if hasattr(planner, "clear_cache"):
+            planner.clear_cache()
+        expert_frames = store.load_frames(str(spec["expert_episode_id"]))
+        speed = float(spec.get("speed", 1.0))
+        if speed < 0:
+            raise ValueError(f"rollout job speed must be >= 0, got {speed}")
+        total_ticks = [0]
+        last_pose = [0.0]
+        seq = [0]
+
+        def on_event(kind: str, info: dict) -> None:
+            if kind == "waypoint":
+                msg = f"waypoint {info['index'] + 1} of {info['total']}"
+            elif kind == "grasp_correction":
+                msg = f"grasp correction {info['iteration']}/3" + ("" if info.get("found") else " (nothing seen)")
+            elif kind == "replanning":
+                msg = f"re-planning ({info['attempt']} of {info['of']})"
+            elif kind == "planning":
+                msg = "planning"
+            elif kind == "planned":
+                # The plan's waypoints ride along as metrics (wp<i>_x/y/z/g) so viewers can draw every re-plan live.
+                wps = np.asarray(info["waypoints"], dtype=float).reshape(-1, 4)
+                metrics = {f"wp{i}_{c}": float(v) for i, row in enumerate(wps) for c, v in zip("xyzg", row)}
+                ctx.progress(total_ticks[0], message=f"planned ({info['attempt'] + 1})", **metrics)
+                return
+            elif kind == "outcome":
+                msg = "success" if info["success"] else f"failed at {info['failure_stage']}"
+            else:
+                return
+            ctx.progress(total_ticks[0], message=msg)
+
+        wall_start: list[float] = []
+
+        def on_tick() -> None:
+            total_ticks[0] += 1
+            now = time.monotonic()
+            if speed > 0:  # paced for watching: simulated time runs at `speed` x wall time
+                if not wall_start:
+                    wall_start.append(now - env.data.time / speed)
+                ahead = wall_start[0] + env.data.time / speed - now
+                if ahead > 0:
+                    ctx.wait_cancelled(ahead)
+                    now = time.monotonic()
+            if now - last_pose[0] >= 1 / 30:
+                last_pose[0] = now
+                seq[0] += 1
+                ctx.poses(pose_frame(env.data, seq=seq[0], step=env.steps, ack_seq=0, ee_pos=env.ee_pos,
+                                     gripper=env.gripper_cmd))
+
+        out = run_rollout(env, planner, expert_frames, task.name, int(spec["seed"]), replans=replans,
+                          on_event=on_event, on_tick=on_tick, should_stop=lambda: ctx.cancelled)
+        ctx.raise_if_cancelled()
+        checkpoint = str(spec["checkpoint"])
+        if checkpoint != "oracle":
+            # Decoded here, where the model lives, so that viewers (the UI) never need torch.
+            attach_latent_images(checkpoint, out.plans)
+        checkpoint_id = spec.get("checkpoint_id")
+        if checkpoint != "oracle" and not checkpoint_id:
+            checkpoint_id = register_checkpoint(store.root, checkpoint)
+        record = store_rollout(store, out, expert_episode_id=str(spec["expert_episode_id"]),
+                               checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
+                               extra={"job": ctx.job, "checkpoint": checkpoint})
+        return {"rollout_id": record.id, "success": out.success, "failure_stage": out.failure_stage,
+                "replans": out.replans, "planning_time_s": out.planning_time_s, "episode_id": record.episode_id,
+                "stages": out.stages}
+    finally:
+        env.close()
