@@ -53,7 +53,7 @@ def run_rollout_job(ctx) -> dict:
         if speed < 0:
             raise ValueError(f"rollout job speed must be >= 0, got {speed}")
         total_ticks = [0]
-        last_pose = [0.0]
+        last_pose = [-1.0]
         seq = [0]
 
         def on_event(kind: str, info: dict) -> None:
@@ -89,8 +89,12 @@ def run_rollout_job(ctx) -> dict:
                 if ahead > 0:
                     ctx.wait_cancelled(ahead)
                     now = time.monotonic()
-            if now - last_pose[0] >= 1 / 30:
-                last_pose[0] = now
+            # Poses go out at ≤ 30 Hz of the viewer's clock. Paced, that clock is simulated time over `speed`,
+            # so every stretch of the rollout is shown alike even when a busy machine makes the loop catch up
+            # in bursts; unpaced, it is the wall clock.
+            clock = env.data.time / speed if speed > 0 else now
+            if clock - last_pose[0] >= 1 / 30:
+                last_pose[0] = clock
                 seq[0] += 1
                 ctx.poses(pose_frame(env.data, seq=seq[0], step=env.steps, ack_seq=0, ee_pos=env.ee_pos,
                                      gripper=env.gripper_cmd))
