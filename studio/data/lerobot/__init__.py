@@ -10,6 +10,7 @@
 The names other code uses are re-exported here.
 """
 
+from studio.data.lerobot.command import add_export_arguments, add_import_arguments, run_export, run_import
 from studio.data.lerobot.reader import import_lerobot
 from studio.data.lerobot.schema import CODEBASE_VERSION, INFO_PATH, VIDEO_KEY, LeRobotError
 from studio.data.lerobot.validate import validate_dataset
@@ -21,7 +22,11 @@ __all__ = [
     "VIDEO_KEY",
     "ExportReport",
     "LeRobotError",
+    "add_export_arguments",
+    "add_import_arguments",
     "export_lerobot",
     "import_lerobot",
+    "run_export",
+    "run_import",
     "validate_dataset",
 ]
