@@ -1,7 +1,7 @@
 """Every message on the studio's Zenoh bus: typed, frozen, versioned records and their binary encoding.
 
 This module is the single source of truth for the wire protocol; ``docs/protocol.md`` embeds the tables
-that :func:`markdown_tables` generates from the classes below (a test keeps the two in sync).
+that :mod:`studio.backend.protocol_doc` generates from the classes below (a test keeps the two in sync).
 
 Wire format: one byte :data:`PROTOCOL_VERSION`, then MessagePack of the message as an array whose first
 element is the message's tag (its class name) followed by its fields in declaration order. Fields may only
@@ -65,25 +65,28 @@ def _require_finite(owner: str, **values: float | tuple[float, ...] | None) -> N
 
 
 class Message(msgspec.Struct, frozen=True, tag=True, array_like=True):
-    """Base of every bus message; the tag is the class name."""
+    """Base of every bus message; the tag is the class name.
+
+    Subclasses repeat ``frozen=True``: msgspec inherits it, but type checkers only see it when it is spelled out.
+    """
 
 
 # ---------------------------------------------------------------------------------------------- common
-class ErrorReply(Message):
+class ErrorReply(Message, frozen=True):
     """Answer to a query that could not be served. ``code`` is machine-readable, ``message`` for humans."""
 
     code: Literal["bad_request", "not_found", "busy", "unavailable", "conflict", "internal"]
     message: Text
 
 
-class Ack(Message):
+class Ack(Message, frozen=True):
     """Plain acknowledgement of a request that returns nothing else."""
 
     message: Text = ""
 
 
 # ---------------------------------------------------------------------------------------------- presence
-class WorkerStatus(Message):
+class WorkerStatus(Message, frozen=True):
     """What a worker is and does; published on ``studio/workers/<kind>/<id>/status`` on every change."""
 
     worker: Id
@@ -104,7 +107,7 @@ class WorkerStatus(Message):
 
 
 # ---------------------------------------------------------------------------------------------- teleop requests
-class OpenSession(Message):
+class OpenSession(Message, frozen=True):
     """Create (or re-create) the teleop session named by the key: a fresh scene reset to (task, seed)."""
 
     scene: Name
@@ -115,14 +118,14 @@ class OpenSession(Message):
     image_width: Pixels = 320
 
 
-class ResetSession(Message):
+class ResetSession(Message, frozen=True):
     """Reset the session's scene; None keeps the current task or seed. Discards an unsaved recording."""
 
     task: Name | None = None
     seed: Seed | None = None
 
 
-class StartRecording(Message):
+class StartRecording(Message, frozen=True):
     """Start recording; by default the scene is reset first so the episode starts at its seed's state.
 
     ``role`` defaults to ``expert`` for the Sawyer and ``agent`` for the Panda.
@@ -132,7 +135,7 @@ class StartRecording(Message):
     reset: bool = True
 
 
-class StopRecording(Message):
+class StopRecording(Message, frozen=True):
     """Stop recording and store the episode; the outcome arrives later as :class:`EpisodeSaved`.
 
     ``success`` is the user's verdict (the UI pre-fills it with the task's predicate); None stores the
@@ -142,11 +145,11 @@ class StopRecording(Message):
     success: bool | None = None
 
 
-class DiscardRecording(Message):
+class DiscardRecording(Message, frozen=True):
     """Stop recording and drop what was recorded."""
 
 
-class RequestFrame(Message):
+class RequestFrame(Message, frozen=True):
     """Render one camera image now; answered with an :class:`ImageFrame` (also published on ``frames``)."""
 
     camera: Name = "external"
@@ -154,7 +157,7 @@ class RequestFrame(Message):
     quality: Quality = 80
 
 
-class StreamFrames(Message):
+class StreamFrames(Message, frozen=True):
     """Publish camera images on ``frames`` at up to ``hz`` (0 stops). Rendering never delays physics."""
 
     camera: Name = "external"
@@ -163,16 +166,16 @@ class StreamFrames(Message):
     quality: Quality = 80
 
 
-class GetGeometry(Message):
+class GetGeometry(Message, frozen=True):
     """Ask for the scene's visual geometry (answered with :class:`SceneGeometry`)."""
 
 
-class CloseSession(Message):
+class CloseSession(Message, frozen=True):
     """End the session and free its simulator."""
 
 
 # ---------------------------------------------------------------------------------------------- teleop replies and streams
-class SessionInfo(Message):
+class SessionInfo(Message, frozen=True):
     """Answer to :class:`OpenSession` / :class:`ResetSession`: what the session simulates.
 
     ``body_names[i]`` names row ``i`` of every :class:`PoseFrame`; ``camera`` is
@@ -193,7 +196,7 @@ class SessionInfo(Message):
     image_width: Pixels
 
 
-class SessionState(Message):
+class SessionState(Message, frozen=True):
     """A session's recording state; reply to recording requests and published on ``status``."""
 
     session: Id
@@ -207,7 +210,7 @@ class SessionState(Message):
     message: Text = ""
 
 
-class EpisodeSaved(Message):
+class EpisodeSaved(Message, frozen=True):
     """A recorded episode is durable in the store (published on the session's ``status``)."""
 
     session: Id
@@ -220,7 +223,7 @@ class EpisodeSaved(Message):
     via: Literal["data-dir", "bus"]
 
 
-class EpisodeNotSaved(Message):
+class EpisodeNotSaved(Message, frozen=True):
     """A recorded episode could not reach the store yet; ``kept_at`` says where it waits (never lost)."""
 
     session: Id
@@ -228,7 +231,7 @@ class EpisodeNotSaved(Message):
     kept_at: Text
 
 
-class EeTarget(Message):
+class EeTarget(Message, frozen=True):
     """Teleop command on ``cmd``: end-effector (grasp point) target in the world and gripper closure.
 
     Latest wins: the worker applies only the newest target at each control tick; ``seq`` increases.
@@ -242,7 +245,7 @@ class EeTarget(Message):
         _require_finite("EeTarget", pos=self.pos)
 
 
-class PoseFrame(Message):
+class PoseFrame(Message, frozen=True):
     """Body poses after one control tick (``poses``: ``body_count`` × 7 float32, xyz + quaternion wxyz).
 
     ``ack_seq`` is the ``seq`` of the newest :class:`EeTarget` applied before this tick (-1: none yet).
@@ -278,7 +281,7 @@ class PoseFrame(Message):
         return np.frombuffer(self.poses, dtype="<f4").reshape(self.body_count, POSE_WIDTH)
 
 
-class ImageFrame(Message):
+class ImageFrame(Message, frozen=True):
     """One RGB camera image: JPEG bytes, or raw row-major (height, width, 3) uint8 bytes."""
 
     camera: Name
@@ -298,7 +301,7 @@ class ImageFrame(Message):
 
     @classmethod
     def from_array(
-        cls, image: np.ndarray, *, camera: str, step: int, encoding: str = "jpeg", quality: int = 80
+        cls, image: np.ndarray, *, camera: str, step: int, encoding: ImageEncoding = "jpeg", quality: int = 80
     ) -> ImageFrame:
         img = np.ascontiguousarray(image, dtype=np.uint8)
         if img.ndim != 3 or img.shape[2] != 3:
@@ -359,7 +362,7 @@ class MeshSpec(msgspec.Struct, frozen=True, array_like=True):
             raise ValueError("MeshSpec vertices and faces must be whole (n, 3) float32 / int32 arrays")
 
 
-class SceneGeometry(Message):
+class SceneGeometry(Message, frozen=True):
     """Everything a viewer needs to draw the scene; bodies move with :class:`PoseFrame`."""
 
     body_names: tuple[str, ...]
@@ -373,7 +376,7 @@ class SceneGeometry(Message):
 
 
 # ---------------------------------------------------------------------------------------------- jobs
-class JobSubmit(Message):
+class JobSubmit(Message, frozen=True):
     """Put a job in the queue. ``spec`` is the handler's input (its own schema, validated by the handler).
 
     A job whose worker is lost is re-queued (up to ``max_attempts`` attempts in all) when
@@ -388,14 +391,14 @@ class JobSubmit(Message):
     max_attempts: Annotated[int, msgspec.Meta(ge=1, le=100)] = 3
 
 
-class JobCancel(Message):
+class JobCancel(Message, frozen=True):
     """Cancel a queued or running job (sent to the queue, which forwards it to the worker)."""
 
     job: Id
     reason: Text = ""
 
 
-class JobAssign(Message):
+class JobAssign(Message, frozen=True):
     """The queue hands one attempt of a job to a worker (answered with the running :class:`JobStatus`)."""
 
     job: Id
@@ -407,7 +410,7 @@ class JobAssign(Message):
     max_attempts: Annotated[int, msgspec.Meta(ge=1, le=100)] = 3
 
 
-class JobStatus(Message):
+class JobStatus(Message, frozen=True):
     """A job's state. Of two statuses of one job, the one with the larger :func:`status_rank` is newer."""
 
     job: Id
@@ -429,7 +432,7 @@ class JobStatus(Message):
         return self.state in TERMINAL_JOB_STATES
 
 
-class JobProgress(Message):
+class JobProgress(Message, frozen=True):
     """Progress of a running attempt: step of total, named metrics (losses, lr, samples/s...), ETA."""
 
     job: Id
@@ -441,7 +444,7 @@ class JobProgress(Message):
     eta_s: float | None = None
 
 
-class JobArtifact(Message):
+class JobArtifact(Message, frozen=True):
     """A file a job wrote (e.g. a checkpoint), announced as soon as it is complete."""
 
     job: Id
@@ -451,7 +454,7 @@ class JobArtifact(Message):
     step: Count | None = None
 
 
-class JobResult(Message):
+class JobResult(Message, frozen=True):
     """What a finished job returned (handler-defined, JSON-like)."""
 
     job: Id
@@ -488,7 +491,7 @@ class ArrayData(msgspec.Struct, frozen=True, array_like=True):
         )
 
 
-class RecordingPayload(Message):
+class RecordingPayload(Message, frozen=True):
     """A :class:`studio.sim.recording.Recording` as shipped in :class:`EpisodeChunk` pieces."""
 
     scene: Name
@@ -504,7 +507,7 @@ class RecordingPayload(Message):
     arrays: dict[str, ArrayData]
 
 
-class EpisodeChunk(Message):
+class EpisodeChunk(Message, frozen=True):
     """Piece ``index`` of ``count`` of an encoded :class:`RecordingPayload` on its way to the store host."""
 
     transfer: Id
@@ -517,7 +520,7 @@ class EpisodeChunk(Message):
             raise ValueError(f"EpisodeChunk.index {self.index} is not below count {self.count}")
 
 
-class EpisodeCommit(Message):
+class EpisodeCommit(Message, frozen=True):
     """All chunks sent: verify the SHA-256 of their concatenation and store the episode."""
 
     transfer: Id
@@ -529,14 +532,14 @@ class EpisodeCommit(Message):
     extra: dict[str, Any] = {}
 
 
-class ChunkAck(Message):
+class ChunkAck(Message, frozen=True):
     """The store host holds chunk ``index`` of ``transfer``."""
 
     transfer: Id
     index: Count
 
 
-class EpisodeStored(Message):
+class EpisodeStored(Message, frozen=True):
     """Answer to :class:`EpisodeCommit`: the episode's id in the store."""
 
     transfer: Id
@@ -606,114 +609,3 @@ def status_rank(status: JobStatus) -> tuple[int, int]:
     """Order of a job's statuses: later attempts first, then queued < running < finished."""
     phase = 2 if status.terminal else (1 if status.state == "running" else 0)
     return (status.attempt, phase)
-
-
-# ---------------------------------------------------------------------------------------------- documentation
-_ALIASES = {
-    "Id": Id,
-    "Name": Name,
-    "Text": Text,
-    "Count": Count,
-    "Unit": Unit,
-    "Vec3": Vec3,
-    "Vec4": Vec4,
-    "Seed": Seed,
-    "Pixels": Pixels,
-    "Quality": Quality,
-    "Role": Role,
-    "ImageEncoding": ImageEncoding,
-    "JobState": JobState,
-}
-
-
-def _type_name(tp: Any, use_aliases: bool = True) -> str:
-    """Short, readable rendering of a field type for the documentation tables."""
-    for alias, value in _ALIASES.items():
-        if use_aliases and tp == value:
-            return alias
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin is Annotated:
-        base, *metas = args
-        limits = []
-        for meta in metas:
-            for key in ("ge", "gt", "le", "lt", "min_length", "max_length", "pattern"):
-                value = getattr(meta, key, None)
-                if value is not None:
-                    limits.append(f"{key}={value}")
-        return f"{_type_name(base)} ({', '.join(limits)})"
-    if origin is Literal:
-        return " \\| ".join(repr(a) for a in args)
-    if origin is Union:
-        return " \\| ".join(_type_name(a) for a in args)
-    if origin is tuple:
-        if len(args) == 2 and args[1] is Ellipsis:
-            return f"tuple[{_type_name(args[0])}, ...]"
-        return f"tuple[{', '.join(_type_name(a) for a in args)}]"
-    if origin is dict:
-        return f"dict[{_type_name(args[0])}, {_type_name(args[1])}]"
-    if tp is type(None):
-        return "None"
-    if tp is Any:
-        return "Any"
-    return getattr(tp, "__name__", repr(tp))
-
-
-def _describe_alias(value: Any) -> str:
-    if typing.get_origin(value) is Literal:
-        return " \\| ".join(repr(a) for a in typing.get_args(value))
-    return _type_name(value, use_aliases=False)
-
-
-def markdown_tables() -> str:
-    """Markdown tables of every message (fields in wire order), generated for ``docs/protocol.md``."""
-    lines = [f"Protocol version: **{PROTOCOL_VERSION}**", "", "| type name | meaning |", "|---|---|"]
-    for alias, value in _ALIASES.items():
-        lines.append(f"| {alias} | {_describe_alias(value)} |")
-    lines.append("")
-    structs = [*MESSAGE_TYPES, GeomSpec, MeshSpec, ArrayData]
-    for cls in structs:
-        tagged = cls in MESSAGE_TYPES
-        doc = " ".join((cls.__doc__ or "").split())
-        lines.append(f"### `{cls.__name__}`" + ("" if tagged else " (nested record)"))
-        lines.append("")
-        lines.append(doc)
-        lines.append("")
-        lines.append("| # | field | type | default |")
-        lines.append("|---|---|---|---|")
-        hints = typing.get_type_hints(cls, include_extras=True)
-        start = 1 if tagged else 0
-        if tagged:
-            lines.append(f'| 0 | (tag) | `"{cls.__name__}"` | |')
-        for i, f in enumerate(msgspec.structs.fields(cls)):
-            default = "" if f.required else f"`{f.default!r}`"
-            lines.append(f"| {i + start} | `{f.name}` | {_type_name(hints[f.name])} | {default} |")
-        lines.append("")
-    return "\n".join(lines).rstrip() + "\n"
-
-
-DOC_BEGIN = (
-    "<!-- BEGIN GENERATED MESSAGE TABLES: python -m studio.backend.messages --update docs/protocol.md -->"
-)
-DOC_END = "<!-- END GENERATED MESSAGE TABLES -->"
-
-
-def update_doc(path: str) -> bool:
-    """Rewrite the generated section of ``path`` (between :data:`DOC_BEGIN` and :data:`DOC_END`)."""
-    with open(path, encoding="utf-8") as f:
-        text = f.read()
-    head, sep1, rest = text.partition(DOC_BEGIN)
-    _, sep2, tail = rest.partition(DOC_END)
-    if not (sep1 and sep2):
-        raise ValueError(f"{path} lacks the generated-section markers")
-    new = f"{head}{DOC_BEGIN}\n\n{markdown_tables()}\n{DOC_END}{tail}"
-    if new != text:
-        with open(path, "w", encoding="utf-8") as f:
-            f.write(new)
-    return new != text
-
-
-if __name__ == "__main__":
-    if len(sys.argv) == 3 and sys.argv[1] == "--update":
-        print("updated" if update_doc(sys.argv[2]) else "up to date", sys.argv[2])
-    else:
-        sys.stdout.write(markdown_tables())

@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Callable
 
-from studio.data import lerobot
+from studio.data.lerobot import command as lerobot_command
 from studio.data.paths import add_data_dir_argument
 from studio.data.store import EpisodeStore
 
@@ -34,8 +34,8 @@ def open_checked_store(data_dir) -> EpisodeStore:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_format_arguments(parser, lerobot.add_export_arguments)
+    add_format_arguments(parser, lerobot_command.add_export_arguments)
 
 
 def run(args: argparse.Namespace) -> int:
-    return lerobot.run_export(args, open_checked_store(args.data_dir))
+    return lerobot_command.run_export(args, open_checked_store(args.data_dir))

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from studio.data import lerobot
 from studio.data.export_command import add_format_arguments, open_checked_store
+from studio.data.lerobot import command as lerobot_command
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_format_arguments(parser, lerobot.add_import_arguments)
+    add_format_arguments(parser, lerobot_command.add_import_arguments)
 
 
 def run(args: argparse.Namespace) -> int:
-    return lerobot.run_import(args, open_checked_store(args.data_dir))
+    return lerobot_command.run_import(args, open_checked_store(args.data_dir))

@@ -1,91 +1,43 @@
-"""Typed configuration of the OSVI-WM network (`ModelConfig`) and of its training (`TrainConfig`), with presets.
+"""Typed configuration of the OSVI-WM network (``ModelConfig``), its training (``TrainConfig``) and the latent
+decoder (``DecoderConfig``), with the named presets.
 
-Presets (``preset(name)`` returns a ``RunConfig`` holding both halves):
+``preset(name, scene)`` returns a ``RunConfig`` holding the network and training halves:
 
-* ``paper`` — the sizes of the paper for the pick-and-place benchmarks: 240×320 input, full ResNet-18 trunk
-  (F = 512 channels, 8×10 map), 2 causal action blocks with 4 heads, 1 world-model block with 4 heads and width
-  512, batch 128, 10 epochs, α = 1 constant, AdamW with a one-cycle schedule 2e-4 → 2e-7.
-* ``paper-metaworld`` — the paper's Meta-World variant: 224×224 input (7×7 map), 6 action blocks with dropout 0.3,
-  α decaying exponentially 1 → 0.05.
-* ``cpu`` — what we train on a 2-core laptop CPU. Chosen by measurement on a 2-vCPU Sapphire-Rapids VM
-  (torch 2.14, fp32, 2 threads; encoder forward+backward over the 11 input frames of one pair, and forward only
-  for planning):
+* ``paper`` — the paper's sizes for the pick-and-place benchmarks, for reproducing it on a GPU: 240×320 input,
+  the whole ResNet-18 trunk (F = 512 channels, an 8×10 map), 2 causal action blocks with 4 heads, 1 world-model
+  block with 4 heads and width 512, batch 128 for 10 epochs, α = 1 constant, AdamW with a one-cycle schedule
+  2e-4 → 2e-7.
+* ``paper-metaworld`` — the paper's Meta-World variant: 224×224 input (a 7×7 map), 6 action blocks with dropout
+  0.3, α decaying exponentially 1 → 0.05.
+* ``cpu`` — what the studio trains on a 2-core CPU: 72×96 input through the trunk up to layer2 (stride 8, a 9×12
+  grid) reduced to 64 state channels by a 1×1 convolution; π with 2 blocks of *divided* time-then-space
+  attention (width 64, 4 heads); 𝒲 with per-cell tokens (width 256, 1 block, not residual); batch 16, lr 1e-3
+  with 5 % warm-up; α = 1 after a warm-up of 10 % of the steps with α = 0 and no augmentation
+  (``alpha_warmup``, ``aug_warmup``); no augmentation, flips or demonstration mixup by default (all available
+  through overrides). Where it departs from the paper — sizes, attention layout, 𝒲's tokens, the warm-ups and
+  the demonstration-task loss — it does so for a measured reason (``docs/experiments.md``; the main ones are
+  also given at the fields).
 
-  ======================  ==============  ============  ================  ==========================
-  trunk                   input           state map      fwd+bwd 11 fr.    inference 11 fr. (plan)
-  ======================  ==============  ============  ================  ==========================
-  layer1-4 (paper)        240×320         512×8×10      0.95–1.2 s         0.25–0.42 s
-  layer1-4                120×160         512×4×5       0.21–0.24 s        0.07 s
-  layer1-4                96×128          512×3×4       0.14 s             0.04–0.05 s
-  layer1-3                120×160         256×8×10      0.14–0.17 s        0.04–0.05 s
-  layer1-3                96×128          256×6×8       0.10–0.11 s        0.03–0.04 s
-  ======================  ==============  ============  ================  ==========================
-
-  The encoder timings favoured 120×160 / layer1-3 (the paper's 8×10 grid at a quarter of the cost), but in
-  training 72×96 with the trunk cut after layer2 (stride 8, a 9×12 grid) learned faster per second: on a
-  two-task probe, validation path error 0.051 m after 300 steps against 0.109 m at 120×160 / layer1-3, at
-  13 against 6 samples/s. That is the preset. A 1×1 convolution reduces the 128 maps to 64 state channels.
-  π has 2 blocks, 4 heads, attention width 64, with *divided* time-then-space attention; 𝒲 has per-cell tokens
-  (width 256, 1 block) and is not residual. Both depart from the paper's layout for a measured reason: the
-  paper's (joint attention over all 1 080 expert tokens, one dense token per map in 𝒲) never let the
-  demonstration change the plan when trained from random weights — on the real data (swapping the
-  demonstration for another task's moved the latent action by 0.05 % and the waypoints by nothing after 500
-  steps) and on the synthetic follow-the-demonstration task, where only this combination learned
-  (``transformer``, ``world_model``, docs/results.md). Batch 16, lr 1e-3 with 5 % warm-up, no flips (the
-  target zones have fixed places), no demonstration mixup (every probe above ran without it; not yet measured
-  with this layout). α = 1, but only after a warm-up of 10 % of the steps with α = 0 and no augmentation
-  (``alpha_warmup``, ``aug_warmup``): on the real data, 𝓛_wm from step 0 kept the plan at the mean path for
-  450+ steps (demonstration effect 0.0001 m) while the same run without it followed the demonstration by step
-  150 (effect 0.154 m, final-point error 0.043 m); switched on after that, 𝓛_wm did not undo it. No
-  augmentation: with crop, translation, scale and colour jitter switched on after the warm-up, the validation
-  final-point error at step 200 was 0.118 m against 0.044 m without (docs/results.md); augmentation stays
-  available (``--set train.crop=0.05 ...``, starting after ``aug_warmup``). One loss the paper does not have:
-  ``demo_task_weight = 1`` — π names the demonstrated task from its outputs at the expert frames. Without it no
-  run matched objects (the plan grasped where the demonstration grasped, whatever the agent's scene held); with
-  it the synthetic match task was learned on two seeds out of two and pick-and-place found the demonstrated
-  object on held-out tasks (docs/results.md, sessions 7 and 8). On pick-and-place only
-  (``DEMO_TASK_LOSS_SCENES``): on Meta-World it fitted the training tasks better and answered the unseen tasks
-  with training tasks' motions (session 9), and on push it is what held the unseen task at 0 %: naming
-  ``blue-forward`` from every demonstration of the blue box, π learned that blue means forward (session 14).
-  ``--set train.demo_task_weight=0`` (or ``=1``) overrides it; the ``paper`` presets never use it.
-  Push adds its own augmentation (``SCENE_TRAIN_SETTINGS``): the demonstration alone mirrored half the time and
-  each pair's hue turned by one shared angle half the time (``expert_hflip``, ``pair_hue``); with those and
-  without the task loss, its unseen task went from 0–5 % to 100 % on two seeds (session 14).
-
-How the ``cpu`` preset is trained to its quality target (``studio quickstart``): not whole from the start. Trained
-whole, the full model's plan follows the demonstration within a few hundred steps but stays on a plateau where it
-ignores the agent's own scene (validation path error 0.077 m through 1700 steps; 47 % held-out; sessions 8–11),
-while the same network with ``world_model=False`` leaves that plateau by step 800. So the encoder, π, pooling and
-head are first trained with ``world_model=False``; ``studio train --init`` of that checkpoint into the full
-model then adds 𝒲 untrained (``train``) and trains everything with the paper's losses (α warm-up kept, since
-𝒲 starts from random weights). Grown that way for 700 steps, the full model kept the scene (path error 0.019 m)
-and reached 95.0 % held-out (docs/results.md, session 12). Since session 13 the grow stage holds the encoder
-fixed (``TrainConfig.freeze``; π, 𝒲, pooling and head train): with the encoder training, every grow run lost
-3.5–10 points of held-out success against its starting point; fixed, three runs kept 100 %. Every stage also
-mirrors whole demonstration–agent pairs half the time (``hflip=0.5`` on top of ``expert_hflip=0.5``). These are
-the quickstart's settings, not the preset's: the preset trains one stage. With the encoder fixed, the
-no-stop-gradient ablation is the full model (no gradient reaches the encoder either way), so it is grown with the
-encoder training.
+Only ``cpu`` depends on the scene: :data:`SCENE_TRAIN_SETTINGS` is the table of the training settings a scene
+adds (pick-and-place: the demonstration-task loss ``demo_task_weight``; push: ``expert_hflip`` and ``pair_hue``;
+a scene not listed, such as Meta-World: none). ``--set train.FIELD=VALUE`` overrides anything. ``studio
+quickstart`` trains the ``cpu`` preset in stages (without the world model first, then ``--init`` into the full
+model with the encoder frozen); those are the quickstart's settings, not the preset's.
 
 Ablations (paper section 4, "ablations"), all switches of ``ModelConfig``/``TrainConfig``:
 
 * ``ModelConfig.world_model=False`` — no world model: the action model's single latent action for the first
   agent state is pooled and decoded (a one-element trajectory); there is then no world-model loss.
-  Measured on pick-and-place with the ``cpu`` recipe (docs/results.md, session 10): 99.5 % held-out against the
-  full model's 47 % trained whole and 95.0 % grown from it (session 12) — not the paper's ordering; shipped as
-  ``pick-place-no-world-model``.
 * ``TrainConfig.wm_loss=False`` — the world model is kept but 𝓛_wm is not applied (future frames not encoded).
-  Same recipe, trained whole as the full model was until session 11 (47 %): 24.5 %.
 * ``TrainConfig.stop_gradient=False`` — 𝓛_wm back-propagates into the encoder through the targets as well.
-  Same recipe, trained whole (session 11): 19.5 % (paper, Pick-Place: 20); grown like the full model (session 12):
-  99.0 %, against the full model's 95.0 %.
 * ``ModelConfig.pool_before_wm=True`` — spatial-softmax pooling is applied to the encoder states before π and 𝒲,
-  which then work on 2F-vectors instead of F×H×W maps. Same recipe (session 11): 18.0 % (paper: 15).
+  which then work on 2F-vectors instead of F×H×W maps.
 * ``ModelConfig.single_step=True`` — the world model makes one prediction, supervised by the last agent frame
-  (the reference code's pick-and-place setting of a first and a last agent frame). Same recipe (session 11):
-  10.0 % (paper, Pick-Place: 100).
-"""
+  (the reference code's pick-and-place setting of a first and a last agent frame).
 
+The measurements behind these choices — encoder timings, probes, the held-out success of each preset and
+ablation — are in ``docs/experiments.md``.
+"""
 from __future__ import annotations
 
 import dataclasses
@@ -160,9 +112,10 @@ class ModelConfig:
     demo_task_table: tuple[tuple[int, ...], ...] = ()
 
     def __post_init__(self) -> None:
+        # JSON gives lists where the fields hold tuples; image_size's length is checked below
         self.image_size = tuple(int(v) for v in self.image_size)  # type: ignore[assignment]
-        self.demo_task_groups = tuple(int(v) for v in self.demo_task_groups)  # type: ignore[assignment]
-        self.demo_task_table = tuple(tuple(int(v) for v in row) for row in self.demo_task_table)  # type: ignore[assignment]
+        self.demo_task_groups = tuple(int(v) for v in self.demo_task_groups)
+        self.demo_task_table = tuple(tuple(int(v) for v in row) for row in self.demo_task_table)
         if self.demo_task_groups and sum(self.demo_task_groups) != self.demo_task_classes:
             raise ValueError(
                 f"demo_task_groups {self.demo_task_groups} do not add up to demo_task_classes {self.demo_task_classes}"
@@ -220,11 +173,11 @@ class TrainConfig:
         alpha_warmup: fraction of the steps trained with α = 0 (no 𝓛_wm, no target encodings) before the schedule
             starts. From random weights, 𝓛_wm from step 0 holds the plan at the mean path: the encoder's pooled
             keypoints start out static, and pulling the predicted keypoints onto them erases what π read from the
-            demonstration (docs/results.md, session 4). Once π follows the demonstration, 𝓛_wm does no harm.
+            demonstration (docs/results.md). Once π follows the demonstration, 𝓛_wm does no harm.
         wm_loss, stop_gradient: ablation switches.
         demo_task_weight: weight of an auxiliary cross-entropy that makes π name the demonstration's task from
             its outputs at the expert frames (0 = off, the paper's loss). Not in the paper: a probe of whether
-            telling π *what* was demonstrated lets it learn *where* that is in the agent's frame (session 7).
+            telling π *what* was demonstrated lets it learn *where* that is in the agent's frame.
         demo_task_labels: what that loss names: "task" (the training task) or "parts" (its object and its target,
             each by its own classifier; tabletop scenes only). See ``demo_task``.
         sdtw_gamma, sdtw_normalize, dense_points, gripper_weight: the waypoint loss (see ``losses``).
@@ -233,7 +186,7 @@ class TrainConfig:
         expert_hflip: probability of mirroring an expert video alone, its agent clips not. Our tasks are named
             by colours (``bar->blue``), which a mirror keeps, so the mirrored video is still a demonstration of
             the task; what it breaks is "grasp where the demonstration grasped", the same-place shortcut a π
-            with per-cell time attention finds first (docs/results.md, session 5).
+            with per-cell time attention finds first (docs/results.md).
         pair_hue: probability of rotating the hue of an expert video and its agent clips by one shared random
             angle (0..2π; not in the paper; ``augment``), so that a colour stops predicting a motion.
         pair_channels: probability of reordering the RGB channels of an expert video and its agent clips by one
@@ -299,7 +252,7 @@ class TrainConfig:
     precision: Literal["fp32", "bf16"] = "fp32"
 
     def __post_init__(self) -> None:
-        self.scale = tuple(float(v) for v in self.scale)  # type: ignore[assignment]
+        self.scale = tuple(float(v) for v in self.scale)  # type: ignore[assignment]  # a JSON list; length checked below
         parts = self.freeze.split(",") if isinstance(self.freeze, str) else self.freeze
         self.freeze = tuple(str(p).strip() for p in parts if str(p).strip())
         unknown = sorted(set(self.freeze) - set(FREEZABLE))
@@ -381,13 +334,13 @@ def _from_dict(cls, d: dict[str, Any]):
 PRESETS = ("paper", "paper-metaworld", "cpu")
 #: Training settings the ``cpu`` preset adds for one scene, each measured (docs/results.md); a scene not listed
 #: (Meta-World) gets the preset as it is. The demonstration-task loss: on pick-and-place it was the only setting
-#: that found the demonstrated object (sessions 7–8); on Meta-World it made held-out success collapse (14.5 % →
-#: 0 %, session 9); on push it taught "the blue box goes forward" (the only blue task in training) and held the
-#: unseen ``blue-backward`` at 0–5 %, against 100 % without it on two seeds (session 14). Push instead mirrors the
-#: expert video alone half the time (its two box slots swap per episode, so "push where the demonstration
-#: pushed" must not pay) and turns each pair's hue by one shared random angle half the time, so that a box's
-#: colour stops predicting the direction it is pushed in (session 14).
-SCENE_TRAIN_SETTINGS: dict[str, dict[str, float]] = {
+#: that found the demonstrated object; on Meta-World it made held-out success collapse (14.5 % → 0 %); on push
+#: it taught "the blue box goes forward" (the only blue task in training) and held the unseen ``blue-backward``
+#: at 0–5 %, against 100 % without it on two seeds. Push instead mirrors the expert video alone half the time
+#: (its two box slots swap per episode, so "push where the demonstration pushed" must not pay) and turns each
+#: pair's hue by one shared random angle half the time, so that a box's colour stops predicting the direction
+#: it is pushed in.
+SCENE_TRAIN_SETTINGS: dict[str, dict[str, Any]] = {
     "pick_place": {"demo_task_weight": 1.0},
     "push": {"expert_hflip": 0.5, "pair_hue": 0.5},
 }

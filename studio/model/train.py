@@ -17,9 +17,13 @@ Outputs in the run directory:
 Validation runs on *held-out episodes of the training tasks* (the dataset's validation split), without augmentation
 or mixup, in eval mode — never on test tasks, unlike the reference code's model selection.
 
-Long-running use: ``progress`` is called after every step with a dict (step, total_steps, loss, lr,
+Long-running use: ``progress`` is called after every step with a dict (step, total_steps, epoch, loss, lr,
 samples_per_s, eta_s); ``cancel`` (a callable returning bool, or anything with ``is_set()``) is polled every
 step and stops the run after a checkpoint. A tqdm bar is shown on the terminal unless disabled.
+
+The step loop itself — resume, step seeds, metrics, validation cadence, ``best.pt`` / ``last.pt``,
+cancellation, progress — is :class:`studio.model.training_loop.TrainingLoop`, shared with the decoder's
+training; this module gives it the OSVI-WM step, validation and checkpoint contents.
 
 Distributed data parallel: started under ``torchrun`` (``WORLD_SIZE`` > 1 in the environment) the loop joins a
 process group (gloo on CPU, NCCL on CUDA), each rank takes a contiguous slice of every global batch, DDP averages
@@ -30,17 +34,15 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 import torch.distributed as dist
-from torch.utils.data import DataLoader
 
 from studio.model.augment import augment_batch
 from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, expert_indices_of
@@ -49,32 +51,14 @@ from studio.model.demo_task import demo_task_loss, label_table
 from studio.model.losses import alpha as alpha_at
 from studio.model.losses import waypoint_errors, waypoint_loss, world_model_loss
 from studio.model.osvi_wm import OSVIWM
-from studio.model.run_files import (
-    append_jsonl,
-    atomic_save,
-    is_cancelled,
-    step_seed,
-    trim_metrics,
-    write_json,
-)
+from studio.model.run_files import write_json
+from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, plan_batches
 
 CHECKPOINT_FORMAT = "osvi-wm-checkpoint/1"
 # TrainConfig fields that may change when a run is resumed: bookkeeping, which does not change what is computed,
 # and ``max_steps`` — another --steps lengthens or shortens the run, its learning-rate schedule recomputed for the
 # new length from the step reached.
 _RESUMABLE_CHANGES = {"val_every", "val_batches", "checkpoint_every", "log_every", "num_workers", "max_steps"}
-
-
-@dataclass
-class TrainResult:
-    """How a call to ``train`` ended."""
-
-    status: str  # "finished" or "cancelled"
-    step: int
-    total_steps: int
-    out_dir: Path
-    best_val_loss: float | None
-    last_record: dict[str, Any]
 
 
 class CheckpointMismatch(RuntimeError):
@@ -261,7 +245,7 @@ def validate(
     return out
 
 
-# ---------------------------------------------------------------------------------------------- the loop
+# ---------------------------------------------------------------------------------------------- training
 def train(
     run: RunConfig,
     train_set: PairSource,
@@ -292,7 +276,7 @@ def train(
     if owns_group:
         dist.init_process_group("nccl" if torch.device(device).type == "cuda" else "gloo")
     try:
-        result = _train_loop(
+        result = _train(
             run,
             train_set,
             val_set,
@@ -314,7 +298,7 @@ def train(
     return result
 
 
-def _train_loop(
+def _train(
     run: RunConfig,
     train_set: PairSource,
     val_set: PairSource | None,
@@ -327,6 +311,7 @@ def _train_loop(
     resume: bool = True,
     init: str | Path | None = None,
 ) -> TrainResult:
+    """Build a run's model, optimiser, schedule and batches, restore or initialise it, then run the loop."""
     cfg = run.train
     device = torch.device(device)
     out = Path(out_dir)
@@ -368,55 +353,44 @@ def _train_loop(
         optimizer, lambda s: learning_rate_factor(s, total, cfg.lr_warmup, cfg.lr_max, cfg.lr_final)
     )
     fingerprint = train_set.fingerprint()
-    ckpt_path = out / "last.pt"
-    start_step, best_val = 0, None
-    if resume and ckpt_path.exists():
-        ckpt = load_checkpoint(ckpt_path, device)
+    loop = TrainingLoop(
+        out,
+        total,
+        cfg.seed,
+        log_every=cfg.log_every,
+        val_every=cfg.val_every,
+        checkpoint_every=cfg.checkpoint_every,
+        best_metric="val_loss_sdtw",
+        best_key="best_val_loss",
+        name="train",
+        epoch_length=per_epoch,
+        samples_per_step=cfg.batch_size,
+        log_events=True,
+        world=world,
+        rank=rank,
+    )
+
+    def restore(ckpt: dict[str, Any]) -> None:
         diffs = _config_differences(ckpt["config"], run.to_dict())
         if diffs:
             raise CheckpointMismatch(
-                f"{ckpt_path} was trained with another configuration ({'; '.join(diffs)}); use another --out "
-                "directory or --restart"
+                f"{loop.last_path} was trained with another configuration ({'; '.join(diffs)}); use another "
+                "--out directory or --restart"
             )
         if ckpt["dataset_fingerprint"] != fingerprint:
             raise CheckpointMismatch(
-                f"{ckpt_path} was trained on dataset {ckpt['dataset_fingerprint']}, this dataset is {fingerprint}; "
-                "use another --out directory or --restart"
+                f"{loop.last_path} was trained on dataset {ckpt['dataset_fingerprint']}, this dataset is "
+                f"{fingerprint}; use another --out directory or --restart"
             )
         model.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
         scheduler.load_state_dict(ckpt["scheduler"])
-        start_step, best_val = int(ckpt["step"]), ckpt.get("best_val_loss")
-    elif init is not None:
-        start = load_checkpoint(init, device)
-        saved = dict(start["config"]["model"])
-        # A demonstration-task head may be added to a checkpoint trained without one, or one naming other labels
-        # replaced (either starts untrained).
-        head_keys = ("demo_task_classes", "demo_task_groups", "demo_task_table")
-        current = run.to_dict()["model"]
-        new_head = run.model.demo_task_classes > 0 and any(
-            _as_lists(saved.get(k, getattr(ModelConfig(), k))) != _as_lists(current[k]) for k in head_keys
-        )
-        if new_head:
-            saved.update({k: current[k] for k in head_keys})
-        # A checkpoint of the no-world-model ablation may start the full model (a curriculum: encoder, π, pooling
-        # and head carry over, 𝒲 starts untrained).
-        new_wm = run.model.world_model and not saved.get("world_model", True)
-        if new_wm:
-            saved["world_model"] = True
-        untrained = (("demo_task_head.",) if new_head else ()) + (("world_model.",) if new_wm else ())
-        diffs = _config_differences({"model": saved}, {"model": current, "train": {}})
-        if diffs:
-            raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")
-        state = {k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()
-                 if not k.startswith(untrained)}  # fmt: skip
-        missing, unexpected = model.load_state_dict(state, strict=False)
-        if unexpected or [k for k in missing if not k.startswith(untrained)]:
-            raise CheckpointMismatch(f"{init}: weights do not match the model (missing {missing}, unexpected "
-                                     f"{unexpected})")  # fmt: skip
-    else:
+
+    resumed = resume and loop.resume(lambda path: load_checkpoint(path, device), restore)
+    if not resumed and init is not None:
+        _load_init(model, run, init, device)
+    elif not resumed:
         model.set_depth_prior(median_path_depth(train_set))
-    metrics_path = out / "metrics.jsonl"
     if main:
         summary = {
             "config": run.to_dict(),
@@ -426,160 +400,91 @@ def _train_loop(
         if init is not None:
             summary["init"] = str(init)
         write_json(out / "config.json", summary)
-        trim_metrics(metrics_path, start_step)
-        event = "resume" if start_step else "start"
-        append_jsonl(
-            metrics_path,
-            {
-                "event": event,
-                "step": start_step,
-                "total_steps": total,
-                "world_size": world,
-                "time": time.time(),
-            },
-        )
 
     core = model
-    if world > 1:
-        model = torch.nn.parallel.DistributedDataParallel(model)
+    forward: torch.nn.Module = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
 
-    def checkpoint(step: int, name: str = "last.pt") -> None:
-        if main:
-            atomic_save(
-                {
-                    "format": CHECKPOINT_FORMAT,
-                    "config": run.to_dict(),
-                    "dataset_fingerprint": fingerprint,
-                    "tasks": list(train_set.tasks),
-                    "step": step,
-                    "total_steps": total,
-                    "best_val_loss": best_val,
-                    "model": core.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "scheduler": scheduler.state_dict(),
-                    "torch_version": torch.__version__,
-                    "time": time.time(),
-                },
-                out / name,
-            )
+    def state() -> dict[str, Any]:
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "config": run.to_dict(),
+            "dataset_fingerprint": fingerprint,
+            "tasks": list(train_set.tasks),
+            "total_steps": total,
+            "model": core.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "scheduler": scheduler.state_dict(),
+            "torch_version": torch.__version__,
+            "time": time.time(),
+        }
 
-    per_rank = cfg.batch_size // world
-    collate = _Collate(run)
-
-    def batches_from(step: int):
-        while step < total:
-            epoch, offset = divmod(step, per_epoch)
-            chunks = [b[rank * per_rank : (rank + 1) * per_rank] for b in plan.epoch(epoch)[offset:]]
-            chunks = chunks[: total - step]
-            if hasattr(train_set, "set_epoch"):
-                train_set.set_epoch(epoch)
-            loader = DataLoader(
-                train_set,
-                batch_sampler=chunks,
-                collate_fn=collate,
-                num_workers=cfg.num_workers,
-                worker_init_fn=_seed_worker,
-            )
-            for batch in loader:
-                yield step, batch
-                step += 1
-
-    bar = None
-    if show_progress and main:
-        from tqdm import tqdm
-
-        bar = tqdm(
-            total=total, initial=start_step, desc="train", unit="step", file=sys.stderr, dynamic_ncols=True
+    def one_step(step: int, batch: Batch, seed: int) -> StepOutput:
+        torch.manual_seed(seed)
+        g = torch.Generator().manual_seed(seed)
+        loss, parts = compute_losses(forward, core, batch.to(device), run, step, total, g)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(
+            core.parameters(), cfg.grad_clip if cfg.grad_clip > 0 else float("inf")
         )
-    status, step, record = "finished", start_step, {}
-    window_start, window_pairs, window_steps, sums = time.perf_counter(), 0, 0, {}
-    run_start, run_start_step = time.perf_counter(), start_step
-    model.train()
-    try:
-        for step, batch in batches_from(start_step):
-            seed = step_seed(cfg.seed, step, rank)
-            torch.manual_seed(seed)
-            g = torch.Generator().manual_seed(seed)
-            loss, parts = compute_losses(model, core, batch.to(device), run, step, total, g)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(
-                core.parameters(), cfg.grad_clip if cfg.grad_clip > 0 else float("inf")
-            )
-            optimizer.step()
-            lr = optimizer.param_groups[0]["lr"]
-            scheduler.step()
-            done = step + 1
-            window_pairs += batch.size * world
-            window_steps += 1
-            for k, v in parts.items():
-                sums[k] = sums.get(k, 0.0) + v
-            sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
-            if done % cfg.log_every == 0 or done == total:
-                elapsed = time.perf_counter() - window_start
-                record = {
-                    "step": done,
-                    "epoch": round(done / per_epoch, 4),
-                    "lr": lr,
-                    "samples_per_s": window_pairs / max(elapsed, 1e-9),
-                }
-                record.update({k: v / window_steps for k, v in sums.items()})
-                if main:
-                    append_jsonl(metrics_path, record)
-                window_start, window_pairs, window_steps, sums = time.perf_counter(), 0, 0, {}
-            if val_set is not None and (done % cfg.val_every == 0 or done == total):
-                if main:
-                    val = validate(core, val_set, run, done, total, device)
-                    append_jsonl(metrics_path, {"step": done, "split": "val", **val})
-                    if best_val is None or val["val_loss_sdtw"] < best_val:
-                        best_val = val["val_loss_sdtw"]
-                        checkpoint(done, "best.pt")
-                if world > 1:
-                    dist.barrier()
-            rate = (done - run_start_step) / max(time.perf_counter() - run_start, 1e-9)
-            info = {
-                "step": done,
-                "total_steps": total,
-                "epoch": done / per_epoch,
-                "loss": parts["loss"],
-                "lr": lr,
-                "samples_per_s": rate * cfg.batch_size,
-                "eta_s": (total - done) / max(rate, 1e-9),
-            }
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{parts['loss']:.4f}", lr=f"{lr:.2e}")
-            if progress is not None and main:
-                progress(info)
-            stop = is_cancelled(cancel)
-            if world > 1:
-                flag = torch.tensor([1.0 if stop else 0.0])
-                dist.all_reduce(flag)
-                stop = bool(flag.item() > 0)
-            if done % cfg.checkpoint_every == 0 or done == total or stop:
-                checkpoint(done)
-            step = done
-            if stop:
-                status = "cancelled"
-                break
-    finally:
-        if bar is not None:
-            bar.close()
-    if main:
-        append_jsonl(metrics_path, {"event": "end", "status": status, "step": step, "time": time.time()})
-    return TrainResult(status, step, total, out, best_val, record)
+        optimizer.step()
+        lr = optimizer.param_groups[0]["lr"]
+        scheduler.step()
+        return StepOutput({**parts, "grad_norm": float(grad_norm)}, lr)
+
+    def validate_at(step: int) -> dict[str, float]:
+        assert val_set is not None
+        return validate(core, val_set, run, step, total, device)
+
+    batches = plan_batches(train_set, plan, total, _Collate(run), cfg.num_workers, world=world, rank=rank)
+    forward.train()
+    return loop.run(
+        batches,
+        one_step,
+        state,
+        validate=validate_at if val_set is not None else None,
+        progress=progress,
+        cancel=cancel,
+        show_progress=show_progress,
+    )
 
 
-def _seed_worker(worker_id: int) -> None:
-    """Give numpy in each DataLoader worker a seed derived from torch's (itself derived from the step seed)."""
-    np.random.seed(torch.initial_seed() % (2**32))  # noqa: NPY002 - datasets may use numpy's global RNG
+def _load_init(model: OSVIWM, run: RunConfig, init: str | Path, device: torch.device) -> None:
+    """Start ``model`` from the weights of the checkpoint or policy file ``init`` (see ``train``)."""
+    start = load_checkpoint(init, device)
+    saved = dict(start["config"]["model"])
+    # A demonstration-task head may be added to a checkpoint trained without one, or one naming other labels
+    # replaced (either starts untrained).
+    head_keys = ("demo_task_classes", "demo_task_groups", "demo_task_table")
+    current = run.to_dict()["model"]
+    new_head = run.model.demo_task_classes > 0 and any(
+        _as_lists(saved.get(k, getattr(ModelConfig(), k))) != _as_lists(current[k]) for k in head_keys
+    )
+    if new_head:
+        saved.update({k: current[k] for k in head_keys})
+    # A checkpoint of the no-world-model ablation may start the full model (a curriculum: encoder, π, pooling
+    # and head carry over, 𝒲 starts untrained).
+    new_wm = run.model.world_model and not saved.get("world_model", True)
+    if new_wm:
+        saved["world_model"] = True
+    untrained = (("demo_task_head.",) if new_head else ()) + (("world_model.",) if new_wm else ())
+    diffs = _config_differences({"model": saved}, {"model": current, "train": {}})
+    if diffs:
+        raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")
+    state = {k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()
+             if not k.startswith(untrained)}  # fmt: skip
+    missing, unexpected = model.load_state_dict(state, strict=False)
+    if unexpected or [k for k in missing if not k.startswith(untrained)]:
+        raise CheckpointMismatch(f"{init}: weights do not match the model (missing {missing}, unexpected "
+                                 f"{unexpected})")  # fmt: skip
 
 
 class _Collate:
     """Picklable collate function bound to the model's input size and frame counts."""
 
     def __init__(self, run: RunConfig) -> None:
-        self.size = tuple(run.model.image_size)
+        height, width = run.model.image_size
+        self.size = (int(height), int(width))
         self.n_expert = run.model.n_expert_frames
         self.n_agent = run.model.n_agent_frames
 

@@ -9,7 +9,8 @@ trained its decoder on a test task). Validation, on held-out episodes of the sam
 predicted states against the real future agent frames) — the second is what the UI shows.
 
 Run directory: ``decoder_config.json``, ``metrics.jsonl``, ``last.pt`` (resumable, same step seeding as the main
-loop) and ``best.pt`` (lowest ``val_pred_mse``); ``load_decoder`` reads either.
+loop) and ``best.pt`` (lowest ``val_pred_mse``); ``load_decoder`` reads either. The step loop and its bookkeeping
+are :class:`studio.model.training_loop.TrainingLoop`, shared with the main model's training.
 """
 
 from __future__ import annotations
@@ -18,8 +19,6 @@ import dataclasses
 import functools
 import hashlib
 import math
-import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -27,21 +26,14 @@ from typing import Any
 import numpy as np
 import torch
 from torch.nn import functional as F
-from torch.utils.data import DataLoader
 
 from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs
 from studio.model.config import DecoderConfig
 from studio.model.decoder import LatentDecoder
 from studio.model.osvi_wm import OSVIWM
-from studio.model.run_files import (
-    append_jsonl,
-    atomic_save,
-    is_cancelled,
-    step_seed,
-    trim_metrics,
-    write_json,
-)
-from studio.model.train import TrainResult, load_checkpoint, model_from_checkpoint
+from studio.model.run_files import write_json
+from studio.model.train import load_checkpoint, model_from_checkpoint
+from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, plan_batches
 
 DECODER_FORMAT = "osvi-wm-decoder/1"
 
@@ -133,17 +125,30 @@ def train_decoder(
     model_id = _model_id(main_ckpt)
     fingerprint = train_set.fingerprint()
     config = dataclasses.asdict(cfg)
-    start, best = 0, None
-    if resume and (out / "last.pt").exists():
-        ckpt = torch.load(out / "last.pt", map_location=device, weights_only=False)
+    loop = TrainingLoop(
+        out,
+        total,
+        cfg.seed,
+        log_every=cfg.log_every,
+        val_every=cfg.val_every,
+        checkpoint_every=cfg.checkpoint_every,
+        best_metric="val_pred_mse",
+        best_key="best_val_pred_mse",
+        loss_key="loss_mse",
+        name="train-decoder",
+    )
+
+    def restore(ckpt: dict[str, Any]) -> None:
         if ckpt.get("model_id") != model_id or ckpt.get("dataset_fingerprint") != fingerprint:
             raise ValueError(
-                f"{out / 'last.pt'} belongs to another model or dataset; use another --out or --restart"
+                f"{loop.last_path} belongs to another model or dataset; use another --out or --restart"
             )
         decoder.load_state_dict(ckpt["decoder"])
         optimizer.load_state_dict(ckpt["optimizer"])
         scheduler.load_state_dict(ckpt["scheduler"])
-        start, best = int(ckpt["step"]), ckpt.get("best_val_pred_mse")
+
+    if resume:
+        loop.resume(lambda path: torch.load(path, map_location=device, weights_only=False), restore)
     write_json(
         out / "decoder_config.json",
         {
@@ -153,102 +158,46 @@ def train_decoder(
             "dataset_fingerprint": fingerprint,
         },
     )
-    metrics = out / "metrics.jsonl"
-    trim_metrics(metrics, start)
 
-    def save(step: int, name: str) -> None:
-        atomic_save(
-            {
-                "format": DECODER_FORMAT,
-                "config": config,
-                "in_dim": model.pooled_dim,
-                "image_size": list(model.cfg.image_size),
-                "model_id": model_id,
-                "dataset_fingerprint": fingerprint,
-                "step": step,
-                "best_val_pred_mse": best,
-                "decoder": decoder.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict(),
-            },
-            out / name,
-        )
+    def state() -> dict[str, Any]:
+        return {
+            "format": DECODER_FORMAT,
+            "config": config,
+            "in_dim": model.pooled_dim,
+            "image_size": list(model.cfg.image_size),
+            "model_id": model_id,
+            "dataset_fingerprint": fingerprint,
+            "decoder": decoder.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "scheduler": scheduler.state_dict(),
+        }
+
+    def one_step(step: int, batch: Batch, seed: int) -> StepOutput:
+        g = torch.Generator(device="cpu").manual_seed(seed)
+        frames = _frames(model, batch.to(device))
+        keys = _keypoints(model, frames)
+        noise = torch.randn(keys.shape, generator=g).to(device) * cfg.noise_std
+        loss = F.mse_loss(decoder(keys + noise), frames.float() / 255)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        lr = optimizer.param_groups[0]["lr"]
+        scheduler.step()
+        return StepOutput({"loss_mse": float(loss.detach())}, lr)
+
+    def validate_at(step: int) -> dict[str, float]:
+        assert val_set is not None
+        return validate_decoder(decoder, model, val_set, cfg, device)
 
     plan = BatchPlan(len(train_set), min(cfg.batch_size, len(train_set)), cfg.seed)
-    per_epoch = plan.batches_per_epoch
-    size = model.cfg.image_size
-
-    def batches(step: int):
-        while step < total:
-            epoch, offset = divmod(step, per_epoch)
-            chunks = plan.epoch(epoch)[offset:][: total - step]
-            if hasattr(train_set, "set_epoch"):
-                train_set.set_epoch(epoch)
-            loader = DataLoader(
-                train_set,
-                batch_sampler=chunks,
-                num_workers=cfg.num_workers,
-                collate_fn=functools.partial(collate_pairs, image_size=size),
-            )
-            for b in loader:
-                yield step, b
-                step += 1
-
-    bar = None
-    if show_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=total, initial=start, desc="train-decoder", unit="step", file=sys.stderr)
-    status, step, record, sums, n_sum = "finished", start, {}, 0.0, 0
-    t_start = time.perf_counter()
+    collate = functools.partial(collate_pairs, image_size=model.cfg.image_size)
     decoder.train()
-    try:
-        for step, batch in batches(start):
-            g = torch.Generator(device="cpu").manual_seed(step_seed(cfg.seed, step))
-            frames = _frames(model, batch.to(device))
-            keys = _keypoints(model, frames)
-            noise = torch.randn(keys.shape, generator=g).to(device) * cfg.noise_std
-            loss = F.mse_loss(decoder(keys + noise), frames.float() / 255)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            lr = optimizer.param_groups[0]["lr"]
-            scheduler.step()
-            done = step + 1
-            value = float(loss.detach())
-            sums, n_sum = sums + value, n_sum + 1
-            if done % cfg.log_every == 0 or done == total:
-                record = {"step": done, "loss_mse": sums / n_sum, "lr": lr}
-                append_jsonl(metrics, record)
-                sums, n_sum = 0.0, 0
-            if val_set is not None and (done % cfg.val_every == 0 or done == total):
-                val = validate_decoder(decoder, model, val_set, cfg, device)
-                append_jsonl(metrics, {"step": done, "split": "val", **val})
-                if best is None or val["val_pred_mse"] < best:
-                    best = val["val_pred_mse"]
-                    save(done, "best.pt")
-            stop = is_cancelled(cancel)
-            if done % cfg.checkpoint_every == 0 or done == total or stop:
-                save(done, "last.pt")
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(mse=f"{value:.4f}")
-            if progress is not None:
-                rate = (done - start) / max(time.perf_counter() - t_start, 1e-9)
-                progress(
-                    {
-                        "step": done,
-                        "total_steps": total,
-                        "loss": value,
-                        "lr": lr,
-                        "eta_s": (total - done) / max(rate, 1e-9),
-                    }
-                )
-            step = done
-            if stop:
-                status = "cancelled"
-                break
-    finally:
-        if bar is not None:
-            bar.close()
-    return TrainResult(status, step, total, out, best, record)
+    return loop.run(
+        plan_batches(train_set, plan, total, collate, cfg.num_workers),
+        one_step,
+        state,
+        validate=validate_at if val_set is not None else None,
+        progress=progress,
+        cancel=cancel,
+        show_progress=show_progress,
+    )

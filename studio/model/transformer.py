@@ -27,7 +27,7 @@ context frames (π's expert frames, all cells, all times) — a content-addresse
 matching the demonstrated object by appearance in one hop. The context tokens themselves do not cross-attend, so
 their outputs are those of the divided layout, and the cross keys and values of the context are cached once.
 Measured on the pick-and-place data it did not help within 500 steps (validation path error 0.079 m, as
-divided; docs/results.md, session 5).
+divided; docs/results.md).
 
 Caching: ``forward(x_new, cache)`` processes new frames given the keys/values of all earlier frames and returns
 the extended cache. Feeding frames one at a time with the cache gives exactly the outputs of one pass over the
@@ -232,12 +232,13 @@ class CausalTransformer(nn.Module):
         if context_frames > x.shape[1]:
             raise ValueError(f"the {context_frames} context frames must come in one call, got {x.shape[1]} frames")
         past_frames = 0 if cache is None else cache.frames
-        layers, contexts = [], []
+        layers: list[tuple[torch.Tensor, torch.Tensor]] = []
+        contexts: list[tuple[torch.Tensor, torch.Tensor]] = []
         for i, block in enumerate(self.blocks):
             past = None if cache is None else cache.layers[i]
             context = None if cache is None or cache.context is None else cache.context[i]
             x, kv, context = block(x, past, past_frames, context, context_frames)
             layers.append(kv)
-            contexts.append(context)
-        context = contexts if contexts[0] is not None else None  # every block has the cross step, or none
-        return self.norm(x), KVCache(layers, past_frames + x.shape[1], context)
+            if context is not None:  # every block has the cross step, or none
+                contexts.append(context)
+        return self.norm(x), KVCache(layers, past_frames + x.shape[1], contexts or None)

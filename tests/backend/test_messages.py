@@ -229,8 +229,12 @@ def test_status_rank_orders_attempts_then_phases():
 
 
 def test_protocol_doc_embeds_the_generated_tables():
+    from studio.backend.protocol_doc import markdown_tables
+
     doc = (ROOT / "docs" / "protocol.md").read_text()
-    assert msg.markdown_tables() in doc, "docs/protocol.md is stale: run `python -m studio.backend.messages`"
+    assert markdown_tables() in doc, (
+        "docs/protocol.md is stale: run `python -m studio.backend.protocol_doc --update docs/protocol.md`"
+    )
 
 
 # ---------------------------------------------------------------------------------------------- fuzzing

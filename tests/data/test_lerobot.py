@@ -16,11 +16,11 @@ from studio.data.lerobot import (
     INFO_PATH,
     VIDEO_KEY,
     LeRobotError,
-    _parse_task_map,
     export_lerobot,
     import_lerobot,
     validate_dataset,
 )
+from studio.data.lerobot.command import parse_task_map
 from studio.data.store import EpisodeStore
 from studio.sim.recording import ARRAY_FIELDS
 
@@ -202,15 +202,15 @@ def test_task_map_and_unknown_tasks(tmp_path, source):
     with pytest.raises(LeRobotError, match="not studio tasks"):
         import_lerobot(dest, tmp_path / "lr", known_tasks=known[1:])
     assert dest.episodes() == []
-    task_map = _parse_task_map([f"{T1}=pick_place/cube->blue"])
+    task_map = parse_task_map([f"{T1}=pick_place/cube->blue"])
     metas = import_lerobot(dest, tmp_path / "lr", task_map=task_map, known_tasks=known, role="agent")
     assert [m.task for m in metas] == ["pick_place/cube->blue", T2, "pick_place/cube->blue"]
     assert all(m.role == "agent" for m in metas)
     mapping = tmp_path / "map.json"
     mapping.write_text(json.dumps({"a": "b/c"}))
-    assert _parse_task_map([str(mapping), "x y=s/t"]) == {"a": "b/c", "x y": "s/t"}
+    assert parse_task_map([str(mapping), "x y=s/t"]) == {"a": "b/c", "x y": "s/t"}
     with pytest.raises(LeRobotError):
-        _parse_task_map(["no-equals-sign"])
+        parse_task_map(["no-equals-sign"])
 
 
 def test_foreign_dataset_without_studio_features(tmp_path, source):

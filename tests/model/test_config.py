@@ -71,8 +71,7 @@ def test_predicted_steps_follow_the_ablations():
 
 def test_the_cpu_preset_names_the_demonstrated_task_on_pick_and_place_only():
     """Measured: the demonstration-task loss is what made π find the demonstrated object on pick-and-place; it made
-    held-out success collapse on Meta-World and on push (docs/results.md, sessions 7-9 and 14); an override still
-    wins."""
+    held-out success collapse on Meta-World and on push (docs/results.md); an override still wins."""
     assert preset("cpu").train.demo_task_weight == 1.0
     assert preset("cpu", "pick_place").train.demo_task_weight == 1.0
     assert preset("cpu", "push").train.demo_task_weight == 0.0
