@@ -15,6 +15,7 @@ from studio.quickstart import add_arguments, schedule, stage_models
 pytestmark = pytest.mark.timeout(900)
 
 
+@pytest.mark.slow
 def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, capsys):
     args = ["quickstart", "--data-dir", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--episodes", "2",
             "--steps", "2", "--refine-steps", "1", "--grow-steps", "1", "--eval-episodes", "1", "--workers", "1",

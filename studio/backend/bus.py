@@ -21,7 +21,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal, TypeVar, overload
 
 import zenoh
 
@@ -31,7 +31,8 @@ log = logging.getLogger("studio.backend")
 
 DEFAULT_PORT = 7447
 DEFAULT_HUB_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
-MODES = ("peer", "client", "router")
+Mode = Literal["peer", "client", "router"]
+MODES: tuple[Mode, ...] = ("peer", "client", "router")
 
 #: Zenoh's link lease: a peer that stops answering (machine gone, cable pulled) is declared lost after
 #: this long, so its liveliness tokens vanish and its jobs are reported within the 5 s the studio promises.
@@ -91,7 +92,7 @@ class BusConfig:
         connect_timeout_s: how long a client waits for its hub when opening before giving up.
     """
 
-    mode: Literal["peer", "client", "router"] = "client"
+    mode: Mode = "client"
     connect: tuple[str, ...] = ()
     listen: tuple[str, ...] = ()
     multicast_scouting: bool = False
@@ -117,7 +118,7 @@ class BusConfig:
 
     @classmethod
     def worker(
-        cls, connect: Iterable[str] = (), listen: Iterable[str] = (), mode: str | None = None
+        cls, connect: Iterable[str] = (), listen: Iterable[str] = (), mode: Mode | None = None
     ) -> BusConfig:
         """A worker's configuration: a client of the hub unless it listens itself (then a peer)."""
         connect, listen = tuple(connect), tuple(listen)
@@ -247,14 +248,27 @@ def payload_bytes(zbytes: zenoh.ZBytes | None) -> bytes:
     return b"" if zbytes is None else zbytes.to_bytes()
 
 
+@overload
+def request(
+    session: zenoh.Session, key: str, message: msg.Message, expect: type[M], *, timeout: float = 5.0
+) -> M: ...
+@overload
 def request(
     session: zenoh.Session,
     key: str,
     message: msg.Message,
-    expect: type[M] | tuple[type[msg.Message], ...],
+    expect: tuple[type[msg.Message], ...],
     *,
     timeout: float = 5.0,
-) -> M:
+) -> msg.Message: ...
+def request(
+    session: zenoh.Session,
+    key: str,
+    message: msg.Message,
+    expect: type[msg.Message] | tuple[type[msg.Message], ...],
+    *,
+    timeout: float = 5.0,
+) -> msg.Message:
     """Send ``message`` as a query to ``key`` and return the first valid reply.
 
     Raises :class:`RemoteError` if the answer is an ErrorReply and :class:`BusError` if nothing valid
@@ -321,15 +335,35 @@ def reply(query: zenoh.Query, message: msg.Message, key: str | None = None) -> N
     query.reply(key or str(query.key_expr), msg.encode(message))
 
 
+@overload
+def declare_queryable(
+    session: zenoh.Session, key: str, handler: Callable[[M, zenoh.Query], Any], expect: type[M]
+) -> zenoh.Queryable: ...
+@overload
+def declare_queryable(
+    session: zenoh.Session,
+    key: str,
+    handler: Callable[[msg.Message, zenoh.Query], Any],
+    expect: tuple[type[msg.Message], ...],
+) -> zenoh.Queryable: ...
+@overload
 def declare_queryable(
     session: zenoh.Session,
     key: str,
     handler: Callable[[msg.Message | None, zenoh.Query], Any],
+    expect: None = None,
+) -> zenoh.Queryable: ...
+def declare_queryable(
+    session: zenoh.Session,
+    key: str,
+    handler: Callable[[Any, zenoh.Query], Any],
     expect: type[msg.Message] | tuple[type[msg.Message], ...] | None = None,
 ) -> zenoh.Queryable:
     """A queryable whose handler receives the decoded request (None without payload).
 
-    The handler returns a message (the reply), a list of (key, message) replies, None (no reply) or
+    With ``expect`` the request is always decoded (and checked to be one of those types), so the handler
+    never receives None. The handler returns a message (the reply), a list of (key, message) replies,
+    None (no reply) or
     :data:`DEFERRED`. Malformed requests get ``ErrorReply("bad_request")``; a handler that raises gets
     ``ErrorReply("internal")`` and the exception is logged — the process keeps serving.
     """
@@ -370,10 +404,26 @@ def declare_queryable(
     return session.declare_queryable(key, on_query)
 
 
+@overload
+def declare_subscriber(
+    session: zenoh.Session,
+    key: str,
+    callback: Callable[[M, zenoh.Sample], None],
+    expect: type[M],
+    **kwargs: Any,
+) -> zenoh.Subscriber: ...
+@overload
 def declare_subscriber(
     session: zenoh.Session,
     key: str,
     callback: Callable[[msg.Message, zenoh.Sample], None],
+    expect: tuple[type[msg.Message], ...] | None = None,
+    **kwargs: Any,
+) -> zenoh.Subscriber: ...
+def declare_subscriber(
+    session: zenoh.Session,
+    key: str,
+    callback: Callable[[Any, zenoh.Sample], None],
     expect: type[msg.Message] | tuple[type[msg.Message], ...] | None = None,
     **kwargs: Any,
 ) -> zenoh.Subscriber:

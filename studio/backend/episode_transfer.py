@@ -22,7 +22,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import zenoh
@@ -32,7 +32,12 @@ from studio.backend import messages as msg
 from studio.sim.camera import CameraModel
 from studio.sim.recording import Recording
 
+if TYPE_CHECKING:
+    from studio.data.store import EpisodeStore
+
 CHUNK_BYTES = 1 << 20
+#: Where an episode came from: the values :class:`~studio.backend.messages.EpisodeCommit` accepts.
+EpisodeSource = Literal["scripted", "teleop", "rollout"]
 
 
 def recording_payload(rec: Recording) -> msg.RecordingPayload:
@@ -111,6 +116,7 @@ class EpisodeSink:
             return msg.ErrorReply(code="bad_request", message="transfer id differs from the key")
         if isinstance(request, msg.EpisodeChunk):
             return self._chunk(request)
+        assert isinstance(request, msg.EpisodeCommit)  # the queryable decodes only these two types
         return self._commit(request)
 
     def _chunk(self, chunk: msg.EpisodeChunk) -> msg.Message:
@@ -211,8 +217,8 @@ class EpisodeShipper:
         self,
         recording: Recording,
         *,
-        role: str,
-        source: str,
+        role: msg.Role,
+        source: EpisodeSource,
         embodiment: str | None = None,
         extra: dict[str, Any] | None = None,
     ) -> str:
@@ -325,15 +331,20 @@ class EpisodeDestination:
             raise ValueError("EpisodeDestination needs exactly one of data_dir or shipper")
         self.data_dir = None if data_dir is None else Path(data_dir)
         self.shipper = shipper
-        self._store = None
+        self._store: EpisodeStore | None = None
         self._lock = threading.Lock()
 
     @property
-    def via(self) -> str:
+    def via(self) -> Literal["data-dir", "bus"]:
         return "data-dir" if self.data_dir is not None else "bus"
 
     def save(
-        self, recording: Recording, *, role: str, source: str, extra: dict[str, Any] | None = None
+        self,
+        recording: Recording,
+        *,
+        role: msg.Role,
+        source: EpisodeSource,
+        extra: dict[str, Any] | None = None,
     ) -> str:
         """Store the recording; returns the episode id. Raises ShipError (bus) or StoreError (local)."""
         if self.shipper is not None:

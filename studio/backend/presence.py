@@ -226,11 +226,11 @@ class Directory:
                 threading.Thread(target=self._fetch_status, args=(kind, worker), daemon=True).start()
         else:
             with self._cond:
-                entry = self._workers.pop(ident, None)
+                gone = self._workers.pop(ident, None)
                 self._early_status.pop(ident, None)
                 self._cond.notify_all()
-            if entry is not None:
-                self._emit("left", entry)
+            if gone is not None:
+                self._emit("left", gone)
 
     def _on_status(self, status: msg.WorkerStatus, sample: zenoh.Sample) -> None:
         try:

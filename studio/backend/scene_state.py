@@ -6,12 +6,18 @@ and :class:`~studio.backend.messages.GeomSpec` ``body`` indices agree without a 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import Literal
+
 import mujoco
 import numpy as np
 
 from studio.backend import messages as msg
 
-_GEOM_TYPES = {
+#: The values of :attr:`studio.backend.messages.GeomSpec.type`.
+GeomType = Literal["plane", "hfield", "sphere", "capsule", "ellipsoid", "cylinder", "box", "mesh", "sdf"]
+
+_GEOM_TYPES: dict[int, GeomType] = {
     int(mujoco.mjtGeom.mjGEOM_PLANE): "plane",
     int(mujoco.mjtGeom.mjGEOM_HFIELD): "hfield",
     int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",
@@ -22,6 +28,16 @@ _GEOM_TYPES = {
     int(mujoco.mjtGeom.mjGEOM_MESH): "mesh",
     int(mujoco.mjtGeom.mjGEOM_SDF): "sdf",
 }
+
+
+def _vec3(values: Iterable[float]) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in values)
+    return x, y, z
+
+
+def _vec4(values: Iterable[float]) -> tuple[float, float, float, float]:
+    a, b, c, d = (float(v) for v in values)
+    return a, b, c, d
 
 
 def body_names(model: mujoco.MjModel) -> tuple[str, ...]:
@@ -79,10 +95,10 @@ def scene_geometry(model: mujoco.MjModel, max_group: int = 2) -> msg.SceneGeomet
                 body=int(model.geom_bodyid[g]),
                 type=gtype,
                 group=int(model.geom_group[g]),
-                size=tuple(float(v) for v in model.geom_size[g]),
-                pos=tuple(float(v) for v in model.geom_pos[g]),
-                quat=tuple(float(v) for v in model.geom_quat[g]),
-                rgba=tuple(float(v) for v in rgba),
+                size=_vec3(model.geom_size[g]),
+                pos=_vec3(model.geom_pos[g]),
+                quat=_vec4(model.geom_quat[g]),
+                rgba=_vec4(rgba),
                 mesh=mesh,
             )
         )

@@ -26,7 +26,7 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import mujoco
 import numpy as np
@@ -36,7 +36,7 @@ from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.episode_transfer import EpisodeDestination, ShipError, recording_payload, write_durably
 from studio.backend.scene_state import body_names, pose_frame, scene_geometry
-from studio.sim.env import SimEnv, make_env
+from studio.sim.env import SimEnv, Simulator, make_env
 from studio.sim.recorder import Recorder
 from studio.sim.recording import Recording
 
@@ -49,13 +49,17 @@ FRAME_PERIOD_S = 0.1
 #: ... but never fewer than MIN_RECORDED_STEPS frames, nor more than this.
 MAX_RECORDED_FRAMES = 300
 #: Default robot role of a teleop recording, by robot (the Sawyer demonstrates, the Panda is the agent).
-DEFAULT_ROLE = {"sawyer": "expert", "panda": "agent"}
+DEFAULT_ROLE: dict[str, msg.Role] = {"sawyer": "expert", "panda": "agent"}
+
+
+#: The codes of :class:`~studio.backend.messages.ErrorReply`.
+ErrorCode = Literal["bad_request", "not_found", "busy", "unavailable", "conflict", "internal"]
 
 
 class SessionError(RuntimeError):
     """A request the session cannot serve; ``code`` is an ErrorReply code."""
 
-    def __init__(self, code: str, message: str):
+    def __init__(self, code: ErrorCode, message: str):
         super().__init__(message)
         self.code = code
 
@@ -109,7 +113,7 @@ class _FinishJob:
     task: str
     seed: int
     success: bool
-    role: str
+    role: msg.Role
     n_frames: int
 
 
@@ -160,22 +164,22 @@ class TeleopSession:
         self._calls: list[_Call] = []
         self._seq = 0
         self._recorder: Recorder | None = None
-        self._role = DEFAULT_ROLE.get(request.robot, "expert")
+        self._role: msg.Role = DEFAULT_ROLE.get(request.robot, "expert")
         self._saving = 0
         self._snapshot = self._take_snapshot()
 
         self._render_cond = threading.Condition()
         self._render_jobs: collections.deque[tuple[str, Any]] = collections.deque()
         self._stream: msg.StreamFrames | None = None
-        self._save_queue: collections.deque[tuple[Recording, str]] = collections.deque()
+        self._save_queue: collections.deque[tuple[Recording, msg.Role]] = collections.deque()
         self._save_cond = threading.Condition()
 
-        fast = {
-            "express": True,
-            "congestion_control": zenoh.CongestionControl.DROP,
-            "priority": zenoh.Priority.INTERACTIVE_HIGH,
-        }
-        self._pose_pub = zsession.declare_publisher(keys.session_key(worker, session_id, "poses"), **fast)
+        self._pose_pub = zsession.declare_publisher(
+            keys.session_key(worker, session_id, "poses"),
+            express=True,
+            congestion_control=zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.INTERACTIVE_HIGH,
+        )
         self._frame_pub = zsession.declare_publisher(
             keys.session_key(worker, session_id, "frames"), congestion_control=zenoh.CongestionControl.DROP
         )
@@ -192,11 +196,12 @@ class TeleopSession:
             t.start()
 
     # ------------------------------------------------------------------ descriptions
-    def _make_env(self, scene: str, robot: str, size: tuple[int, int]) -> SimEnv:
+    def _make_env(self, scene: str, robot: str, size: tuple[int, int]) -> Simulator:
         """The scene's simulator: a SimEnv at the session's control rate, or a Meta-World environment
         (``scene="metaworld"``, whose control rate is Meta-World's own)."""
         if scene == "metaworld":
-            return make_env(scene, robot, image_size=size)
+            env: Simulator = make_env(scene, robot, image_size=size)
+            return env
         return SimEnv(scene, robot, image_size=size, control_dt=self.config.control_dt)
 
     def _describe_model(self) -> None:
@@ -213,15 +218,22 @@ class TeleopSession:
             self._geometry = scene_geometry(self.env.model)
         return self._geometry
 
+    def _episode(self) -> tuple[str, int]:
+        """The current episode's task name and seed (the env is reset when the session opens)."""
+        task, seed = self.env.task, self.env.seed
+        assert task is not None and seed is not None, "a session's env is reset in __init__"
+        return task.name, seed
+
     def info(self) -> msg.SessionInfo:
         env = self.env
+        task, seed = self._episode()
         return msg.SessionInfo(
             session=self.id,
             worker=self.worker,
             scene=env.scene,
             robot=env.robot,
-            task=env.task.name,
-            seed=int(env.seed),
+            task=task,
+            seed=int(seed),
             control_dt=float(env.control_dt),
             body_names=self.body_names,
             cameras=self.cameras,
@@ -233,11 +245,12 @@ class TeleopSession:
     def state(self, message: str = "") -> msg.SessionState:
         env = self.env
         rec = self._recorder
+        task, seed = self._episode()
         return msg.SessionState(
             session=self.id,
             state="closed" if self._closed else ("recording" if rec is not None else "idle"),
-            task=env.task.name,
-            seed=int(env.seed),
+            task=task,
+            seed=int(seed),
             step=env.steps,
             recorded_steps=0 if rec is None else len(rec),
             saving=self._saving,
@@ -379,15 +392,17 @@ class TeleopSession:
         env = self.env
         state = np.empty(mujoco.mj_stateSize(env.model, _STATE))
         mujoco.mj_getState(env.model, env.data, state, _STATE)
-        return _Snapshot(state, env.steps, env.task.name, int(env.seed))
+        task, seed = self._episode()
+        return _Snapshot(state, env.steps, task, int(seed))
 
     def _reset(self, task: str | None, seed: int | None) -> msg.SessionInfo:
         note = ""
         if self._recorder is not None:
             self._recorder = None
             note = "the unsaved recording was discarded by the reset"
+        current_task, current_seed = self._episode()
         try:
-            self.env.reset(task or self.env.task.name, self.env.seed if seed is None else seed)
+            self.env.reset(task or current_task, current_seed if seed is None else seed)
         except ValueError as e:
             raise SessionError("bad_request", str(e)) from None
         self._describe_model()
@@ -401,7 +416,7 @@ class TeleopSession:
         if self._recorder is not None:
             raise SessionError("conflict", "already recording; stop or discard first")
         if request.reset:
-            self.env.reset(self.env.task.name, self.env.seed)
+            self.env.reset(*self._episode())
             with self._cond:
                 self._cmd, self._cmd_new = None, False
             self._publish_pose(-1)
@@ -422,6 +437,7 @@ class TeleopSession:
                 f"recording too short: {len(rec)} steps, need at least {MIN_RECORDED_STEPS}; keep going",
             )
         env = self.env
+        task, seed = self._episode()
         n_frames = int(
             np.clip(
                 round(len(rec) * env.control_dt / FRAME_PERIOD_S), MIN_RECORDED_STEPS, MAX_RECORDED_FRAMES
@@ -430,8 +446,8 @@ class TeleopSession:
         job = _FinishJob(
             rec.rows,
             rec.states,
-            env.task.name,
-            int(env.seed),
+            task,
+            int(seed),
             bool(env.success() if success is None else success),
             self._role,
             n_frames,
@@ -456,7 +472,7 @@ class TeleopSession:
 
     # ------------------------------------------------------------------ render thread
     def _render_loop(self) -> None:
-        render_env: SimEnv | None = None
+        render_env: Simulator | None = None
         layout: tuple[str, int] | None = None
         next_stream = 0.0
         try:
@@ -478,6 +494,7 @@ class TeleopSession:
                 if render_env is None:
                     render_env = self._make_env(self.env.scene, self.env.robot, self.env.image_size)
                 if job is None:
+                    assert stream is not None  # without a job, the loop only wakes for a stream frame
                     next_stream = time.monotonic() + 1.0 / stream.hz
                     layout = self._render_snapshot(render_env, layout, snapshot)
                     frame = msg.ImageFrame.from_array(
@@ -536,7 +553,7 @@ class TeleopSession:
                 render_env.close()
 
     def _render_snapshot(
-        self, env: SimEnv, layout: tuple[str, int] | None, snap: _Snapshot
+        self, env: Simulator, layout: tuple[str, int] | None, snap: _Snapshot
     ) -> tuple[str, int]:
         if layout != (snap.task, snap.seed):
             env.reset(snap.task, snap.seed)  # moves the target zones to where the sim has them

@@ -16,8 +16,8 @@ import contextlib
 import secrets
 import threading
 import time
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Callable, Iterable
+from typing import Any, Literal, overload
 
 import zenoh
 
@@ -29,11 +29,13 @@ from studio.backend.presence import Directory
 def choose_sim_worker(directory: Directory) -> str:
     """The connected sim worker with the fewest teleop sessions; raises BusError if there is none."""
     candidates = [
-        e for e in directory.workers("sim") if e.status is not None and e.status.state != "stopping"
+        (e.status.sessions, e.joined_at, e.worker)
+        for e in directory.workers("sim")
+        if e.status is not None and e.status.state != "stopping"
     ]
     if not candidates:
         raise bus.BusError("no sim worker is connected (start one with `studio worker sim`)")
-    return min(candidates, key=lambda e: (e.status.sessions, e.joined_at)).worker
+    return min(candidates, key=lambda c: (c[0], c[1]))[2]
 
 
 class TeleopClient:
@@ -93,6 +95,8 @@ class TeleopClient:
         if isinstance(message, msg.SessionState):
             self.state.put(message)
         else:
+            # the subscription decodes only SessionState, EpisodeSaved and EpisodeNotSaved
+            assert isinstance(message, (msg.EpisodeSaved, msg.EpisodeNotSaved))
             with self._events_cond:
                 self.episodes.append(message)
                 self._events_cond.notify_all()
@@ -122,14 +126,13 @@ class TeleopClient:
         self.info = self._request(msg.ResetSession(task=task, seed=seed), msg.SessionInfo)
         return self.info
 
-    def set_target(self, pos: Sequence[float], gripper: float) -> int:
+    def set_target(self, pos: Iterable[float], gripper: float) -> int:
         """Send an end-effector target (world frame, metres) and gripper closure; returns its ``seq``."""
+        x, y, z = (float(v) for v in pos)
         with self._seq_lock:
             self._seq += 1
             seq = self._seq
-        cmd = msg.EeTarget(
-            seq=seq, pos=tuple(float(v) for v in pos), gripper=min(1.0, max(0.0, float(gripper)))
-        )
+        cmd = msg.EeTarget(seq=seq, pos=(x, y, z), gripper=min(1.0, max(0.0, float(gripper))))
         self._cmd_pub.put(msg.encode(cmd))
         return seq
 
@@ -141,12 +144,24 @@ class TeleopClient:
         return self.poses.wait_until(lambda f: f.ack_seq >= seq, timeout)
 
     # ------------------------------------------------------------------ recording
-    def start_recording(self, role: str | None = None, reset: bool = True) -> msg.SessionState:
+    def start_recording(self, role: msg.Role | None = None, reset: bool = True) -> msg.SessionState:
         return self._request(msg.StartRecording(role=role, reset=reset), msg.SessionState)
 
     def discard_recording(self) -> msg.SessionState:
         return self._request(msg.DiscardRecording(), msg.SessionState)
 
+    @overload
+    def stop_recording(
+        self, wait: Literal[True] = True, timeout: float = 120.0, success: bool | None = None
+    ) -> msg.EpisodeSaved | msg.EpisodeNotSaved: ...
+    @overload
+    def stop_recording(
+        self, wait: Literal[False], timeout: float = 120.0, success: bool | None = None
+    ) -> msg.SessionState: ...
+    @overload
+    def stop_recording(
+        self, wait: bool, timeout: float = 120.0, success: bool | None = None
+    ) -> msg.EpisodeSaved | msg.EpisodeNotSaved | msg.SessionState: ...
     def stop_recording(
         self, wait: bool = True, timeout: float = 120.0, success: bool | None = None
     ) -> msg.EpisodeSaved | msg.EpisodeNotSaved | msg.SessionState:
@@ -173,14 +188,14 @@ class TeleopClient:
 
     # ------------------------------------------------------------------ images and geometry
     def request_frame(
-        self, camera: str = "external", encoding: str = "jpeg", quality: int = 80
+        self, camera: str = "external", encoding: msg.ImageEncoding = "jpeg", quality: int = 80
     ) -> msg.ImageFrame:
         return self._request(
             msg.RequestFrame(camera=camera, encoding=encoding, quality=quality), msg.ImageFrame
         )
 
     def stream_frames(
-        self, hz: float, camera: str = "external", encoding: str = "jpeg", quality: int = 80
+        self, hz: float, camera: str = "external", encoding: msg.ImageEncoding = "jpeg", quality: int = 80
     ) -> None:
         self._request(msg.StreamFrames(camera=camera, hz=hz, encoding=encoding, quality=quality), msg.Ack)
 
@@ -192,7 +207,12 @@ class TeleopClient:
         """Close the session on the worker and drop the client's subscriptions and token."""
         with contextlib.suppress(bus.BusError, zenoh.ZError):
             self._request(msg.CloseSession(), msg.Ack, timeout=3.0)
-        for entity in (*self._subs, self._cmd_pub, self._token):
+        entities: list[zenoh.Subscriber | zenoh.Publisher | zenoh.LivelinessToken] = [
+            *self._subs,
+            self._cmd_pub,
+            self._token,
+        ]
+        for entity in entities:
             with contextlib.suppress(zenoh.ZError):
                 entity.undeclare()
 

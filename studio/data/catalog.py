@@ -334,7 +334,8 @@ class Catalog:
         limit: int | None = None,
     ) -> list[EpisodeMeta]:
         """Episodes matching every given filter, in insertion order (or newest first)."""
-        where, params = [], []
+        where: list[str] = []
+        params: list[str | int] = []
         if task is not None:
             where.append("task = ?")
             params.append(task)
@@ -461,7 +462,8 @@ class Catalog:
         limit: int | None = None,
     ) -> list[RolloutRecord]:
         """Rollouts matching every given filter, newest first."""
-        where, params = [], []
+        where: list[str] = []
+        params: list[str | int] = []
         for col, val in (
             ("task", task),
             ("checkpoint_id", checkpoint_id),

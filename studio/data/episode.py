@@ -19,6 +19,7 @@ import secrets
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -240,6 +241,9 @@ class Episode:
             raise EpisodeError(
                 f"episode {self.meta.id} has no per-step arrays (embodiment {self.meta.embodiment})"
             )
+        frame_steps, control_dt = self.frame_steps, self.meta.control_dt
+        if frame_steps is None or control_dt is None:  # __post_init__ already requires frame_steps
+            raise EpisodeError(f"episode {self.meta.id} has per-step arrays but no frame_steps or control_dt")
         return Recording(
             scene=self.meta.scene,
             robot=self.meta.embodiment,
@@ -248,10 +252,10 @@ class Episode:
             success=bool(self.meta.success),
             camera=self.camera,
             frames=self.frames,
-            frame_steps=self.frame_steps,
+            frame_steps=frame_steps,
             arrays=dict(self.arrays),
             object_names=list(self.meta.object_names),
-            control_dt=float(self.meta.control_dt),
+            control_dt=float(control_dt),
         )
 
     def with_meta(self, **changes) -> Episode:
@@ -272,7 +276,9 @@ def write_episode_files(ep: Episode, directory: Path, crf: int = 18) -> list[Pat
     directory = Path(directory)
     video_path = directory / FRAMES_FILE
     video.write_video(video_path, ep.frames, fps=ep.meta.fps, crf=crf)
-    arrays = {"frame_times": np.asarray(ep.frame_times, dtype=np.float64)}
+    # Any: numpy's stub of savez declares allow_pickle: bool beside **kwds, so unpacking a dict of arrays
+    # into it does not type-check.
+    arrays: dict[str, Any] = {"frame_times": np.asarray(ep.frame_times, dtype=np.float64)}
     if ep.frame_steps is not None:
         arrays["frame_steps"] = np.asarray(ep.frame_steps, dtype=np.int64)
     arrays.update({k: np.asarray(v) for k, v in ep.arrays.items()})

@@ -27,6 +27,7 @@ import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -186,7 +187,7 @@ class EpisodeStore:
                 extra=extra,
             )
         elif isinstance(item, Episode):
-            changes = {
+            changes: dict[str, Any] = {
                 k: v
                 for k, v in dict(role=role, source=source, embodiment=embodiment).items()
                 if v is not None
@@ -227,6 +228,7 @@ class EpisodeStore:
         work = self.tmp_dir / eid
         final = self.episodes_dir / eid
         fd = _lock(lock_path, blocking=True)
+        assert fd is not None  # a blocking lock that may create its file waits; it never gives up
         try:
             if final.exists():
                 raise StoreError(f"episode {eid} already exists")

@@ -28,6 +28,7 @@ import hashlib
 import json
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -70,6 +71,17 @@ def resize_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 SAME_POOL_SCENES = frozenset({"metaworld"})
 """Scenes whose training pairs take both sides from the stored ``expert`` demonstrations (the paper's Meta-World)."""
+
+
+@dataclass(frozen=True)
+class _Selection:
+    """Which episodes of a task make up the two sides of a pair."""
+
+    expert_roles: tuple[str, ...]
+    agent_roles: tuple[str, ...]
+    expert_embodiments: tuple[str, ...] | None
+    agent_embodiments: tuple[str, ...] | None
+    sources: tuple[str, ...]
 
 
 class PairDataset:
@@ -117,8 +129,10 @@ class PairDataset:
         self._episodes_dir = self._store.episodes_dir
         if isinstance(split_spec, SplitSpec):
             self.spec = split_spec
+        elif split_spec is None:
+            self.spec = load_split(scene)
         else:
-            self.spec = load_split(split_spec if split_spec is not None else scene)
+            self.spec = load_split(split_spec if isinstance(split_spec, str) else Path(split_spec))
         if agent_roles is None:
             agent_roles = ("expert",) if self.spec.scene in SAME_POOL_SCENES else ("agent",)
         self.split = split
@@ -126,7 +140,7 @@ class PairDataset:
         self.n_expert, self.n_agent, self.path_points = n_expert, n_agent, path_points
         self.seed = seed
         self.epoch = 0
-        self._selection = dict(
+        self._selection = _Selection(
             expert_roles=tuple(expert_roles),
             agent_roles=tuple(agent_roles),
             expert_embodiments=None if expert_embodiments is None else tuple(expert_embodiments),
@@ -140,7 +154,7 @@ class PairDataset:
     # ------------------------------------------------------------------ building
     def _side(self, task: str, roles, embodiments, need_arrays: bool) -> list[EpisodeMeta]:
         metas = self._store.catalog.episodes(
-            task=task, role=list(roles), embodiment=embodiments, source=list(self._selection["sources"])
+            task=task, role=list(roles), embodiment=embodiments, source=list(self._selection.sources)
         )
         metas = [m for m in metas if m.success is not False]
         if need_arrays:
@@ -161,8 +175,8 @@ class PairDataset:
             return index_of[m.id]
 
         for t, task in enumerate(self.tasks):
-            experts = self._side(task, sel["expert_roles"], sel["expert_embodiments"], need_arrays=False)
-            agents = self._side(task, sel["agent_roles"], sel["agent_embodiments"], need_arrays=True)
+            experts = self._side(task, sel.expert_roles, sel.expert_embodiments, need_arrays=False)
+            agents = self._side(task, sel.agent_roles, sel.agent_embodiments, need_arrays=True)
             if self.split in ("train", "val"):
                 held_e = validation_ids([m.id for m in experts], self.spec.val_fraction)
                 held_a = validation_ids([m.id for m in agents], self.spec.val_fraction)
@@ -179,8 +193,8 @@ class PairDataset:
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.pair_tasks = np.asarray(pair_tasks, dtype=np.int64)
         self._frames: dict[int, np.ndarray] = {}
-        agents = sorted(set(self.pairs[:, 1].tolist()))
-        self._paths = {a: self._load_path(a) for a in agents}
+        agent_indices = sorted(set(self.pairs[:, 1].tolist()))
+        self._paths = {a: self._load_path(a) for a in agent_indices}
         self._cameras = {i: self._load_camera(i) for i in range(len(self.episodes))}
         self._build_cache()
 

@@ -123,9 +123,12 @@ def load_human_video(
         scene_of_task(task)
     except ValueError as e:
         raise VideoImportError(str(e)) from e
-    start, end = (None, None) if trim is None else (float(trim[0]), float(trim[1]))
-    if trim is not None and not 0.0 <= start < end:
-        raise VideoImportError(f"trim needs 0 <= START < END, got {start} {end}")
+    start: float | None = None
+    end: float | None = None
+    if trim is not None:
+        start, end = float(trim[0]), float(trim[1])
+        if not 0.0 <= start < end:
+            raise VideoImportError(f"trim needs 0 <= START < END, got {start} {end}")
     try:
         info = video.probe_video(path)
     except video.VideoError as e:
@@ -135,7 +138,9 @@ def load_human_video(
             raise VideoImportError(
                 f"{name}: trim start {start:.2f} s is past the end ({info.duration_s:.2f} s)"
             )
-        segment = min(end, info.duration_s) - start if start is not None else info.duration_s
+        segment = (
+            min(end, info.duration_s) - start if start is not None and end is not None else info.duration_s
+        )
         if segment > limits.max_duration_s:
             raise VideoImportError(
                 f"{name}: {segment:.1f} s is over the duration limit of {limits.max_duration_s:.0f} s"

@@ -26,6 +26,8 @@ from studio.model.transformer import CausalTransformer, KVCache
 class ActionModel(nn.Module):
     """π over states shaped ``state_shape``: (C, H, W) maps or (D,) vectors."""
 
+    cell_code: torch.Tensor  # a buffer (register_buffer in __init__)
+
     def __init__(
         self,
         state_shape: tuple[int, ...],

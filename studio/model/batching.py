@@ -76,14 +76,13 @@ def collate_pairs(
             raise KeyError(f"training sample lacks {', '.join(missing)} (has {', '.join(sorted(s))})")
     first_of: dict[int, int] = {}
     expert_ids = []
+    unique: list[dict[str, Any]] = []  # the first sample of each expert, in order of first appearance
     for s in samples:
         key = int(s["expert_index"])
-        expert_ids.append(first_of.setdefault(key, len(first_of)))
-    unique = [None] * len(first_of)
-    for s in samples:
-        row = first_of[int(s["expert_index"])]
-        if unique[row] is None:
-            unique[row] = s
+        if key not in first_of:
+            first_of[key] = len(first_of)
+            unique.append(s)
+        expert_ids.append(first_of[key])
     expert = torch.from_numpy(np.stack([np.asarray(s["expert_frames"]) for s in unique]))
     agent = torch.from_numpy(np.stack([np.asarray(s["agent_frames"]) for s in samples]))
     if (
@@ -105,7 +104,7 @@ def collate_pairs(
             f"the model expects {n_agent} agent frames per sample, the dataset gives {agent.shape[1]}"
         )
     K = torch.from_numpy(np.stack([np.asarray(s["K"], dtype=np.float32) for s in samples]))
-    size = tuple(agent.shape[-2:])
+    size = (int(agent.shape[-2]), int(agent.shape[-1]))
     if image_size is not None and size != tuple(image_size):
         expert = _resize(expert, image_size)
         agent = _resize(agent, image_size)

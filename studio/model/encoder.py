@@ -19,7 +19,7 @@ import torch
 from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval
 
-from studio.model.resnet import STAGE_CHANNELS, imagenet_state_dict, resnet18_layers
+from studio.model.resnet import STAGE_CHANNELS, BasicBlock, imagenet_state_dict, resnet18_layers
 
 _IMAGENET_MEAN = (0.485, 0.456, 0.406)
 _IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -31,6 +31,9 @@ class Encoder(nn.Module):
     Attributes:
         out_channels: C, the state channels (the reduction's width, or the last kept stage's channels).
     """
+
+    mean: torch.Tensor  # buffers (register_buffer in __init__)
+    std: torch.Tensor
 
     def __init__(
         self, stages: int = 4, state_channels: int = 0, pretrained: bool = False, channels_last: bool = True
@@ -48,7 +51,7 @@ class Encoder(nn.Module):
         self.register_buffer("mean", torch.tensor(_IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(_IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
         if channels_last:
-            self.to(memory_format=torch.channels_last)
+            self.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch's stub lacks it
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         if images.ndim < 4 or images.shape[-3] != 3:
@@ -77,13 +80,15 @@ class Encoder(nn.Module):
 
         fold(fused.trunk, "0", "1")
         for stage in list(fused.trunk)[4:]:
+            assert isinstance(stage, nn.Sequential)  # after the stem: ResNet stages of BasicBlocks
             for block in stage:
+                assert isinstance(block, BasicBlock)
                 fold(block, "conv1", "bn1")
                 fold(block, "conv2", "bn2")
                 if block.downsample is not None:
                     fold(block.downsample, "0", "1")
         if fused.channels_last:
-            fused.to(memory_format=torch.channels_last)
+            fused.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch's stub lacks it
         fused.requires_grad_(False)
         return fused
 

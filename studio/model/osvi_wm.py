@@ -70,6 +70,8 @@ class ModelOutput:
 class OSVIWM(nn.Module):
     """The full network; every size derives from ``ModelConfig`` and the probed encoder output."""
 
+    depth_offset: torch.Tensor  # a buffer (register_buffer in __init__)
+
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
         self.cfg = cfg

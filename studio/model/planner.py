@@ -20,6 +20,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -73,6 +74,12 @@ def _chw(frames: np.ndarray | torch.Tensor, what: str, video: bool) -> torch.Ten
     return x if video else x.unsqueeze(0)
 
 
+def _hw(size: Sequence[int]) -> tuple[int, int]:
+    """(height, width) as ints (a config read from JSON holds a list)."""
+    h, w = size
+    return int(h), int(w)
+
+
 def _resize(frames: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     if tuple(frames.shape[-2:]) == tuple(size):
         return frames
@@ -123,13 +130,16 @@ class Planner:
             return None
         if self._class_names is None:
             self._class_names = class_names(self.tasks, self.cfg.demo_task_table)
+        names = self._class_names
         expert = self._expert_input(expert_frames)
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
             encoded = model.encode(expert).float()
         _, outputs = model.action_model.context_and_outputs(encoded.unsqueeze(0))
-        logits = model.demo_task_logits(outputs)[0]
+        all_logits = model.demo_task_logits(outputs)
+        assert all_logits is not None  # the model has the head (checked above)
+        logits = all_logits[0]
         groups = list(self.cfg.demo_task_groups or (self.cfg.demo_task_classes,))
-        return tuple(self._class_names[g][int(part.argmax())] for g, part in enumerate(logits.split(groups)))
+        return tuple(names[g][int(part.argmax())] for g, part in enumerate(logits.split(groups)))
 
     def _expert_input(self, expert_frames: np.ndarray | torch.Tensor) -> torch.Tensor:
         """The demonstration as the model takes it: N evenly spaced frames at the model's size, on the device."""
@@ -139,7 +149,7 @@ class Planner:
             raise ValueError("expert_frames is empty")
         if expert.shape[0] != n:
             expert = expert[np.round(np.linspace(0, expert.shape[0] - 1, n)).astype(int)]
-        return _resize(expert, tuple(self.cfg.image_size)).to(self.device)
+        return _resize(expert, _hw(self.cfg.image_size)).to(self.device)
 
     @torch.inference_mode()
     def plan(
@@ -158,22 +168,24 @@ class Planner:
         if K.shape != (3, 3) or T.shape != (4, 4):
             raise ValueError(f"K must be (3, 3) and T_world_cam (4, 4), got {K.shape} and {T.shape}")
         n = self.cfg.n_expert_frames
-        size = tuple(self.cfg.image_size)
-        K_model = resize_intrinsics(torch.as_tensor(K), tuple(agent.shape[-2:]), size)
+        size = _hw(self.cfg.image_size)
+        K_model = resize_intrinsics(torch.as_tensor(K), _hw(agent.shape[-2:]), size)
         agent = _resize(agent, size).to(self.device)
         key = hashlib.sha1(expert.cpu().numpy().tobytes()).hexdigest()
         t1 = time.perf_counter()
 
         model = self.model
-        reused = key == self._context_key and self._context is not None
+        cached = self._context if key == self._context_key else None
+        reused = cached is not None
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
-            if reused:
+            if cached is not None:
                 agent_state = model.encode(agent).float()
-                context = self._context
             else:
                 encoded = model.encode(torch.cat([expert, agent], 0)).float()
                 agent_state = encoded[n:]
-        if not reused:
+        if cached is not None:
+            context = cached
+        else:
             context = model.action_model.context(encoded[:n].unsqueeze(0))
             self._context_key, self._context = key, context
         t2 = time.perf_counter()

@@ -38,6 +38,8 @@ from studio.model.transformer import CausalTransformer, KVCache
 class WorldModel(nn.Module):
     """𝒲 over states shaped ``state_shape``: (C, H, W) maps or (D,) vectors."""
 
+    cell_code: torch.Tensor  # a buffer (register_buffer in __init__), with per-cell tokens only
+
     def __init__(
         self,
         state_shape: tuple[int, ...],

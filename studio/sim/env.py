@@ -11,6 +11,7 @@ than MuJoCo's defaults on a CPU.
 from __future__ import annotations
 
 import os
+from typing import Protocol
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -20,6 +21,7 @@ import numpy as np
 from studio.sim import rendering, robots, scenes
 from studio.sim.camera import CameraModel
 from studio.sim.ik import make_controller
+from studio.sim.metaworld_tasks import MetaWorldTask
 from studio.sim.tasks import Task, get_task
 
 #: Where targets are clamped to: (min, max) per world axis of the grasp site, metres.
@@ -30,6 +32,48 @@ _FINGER_BODIES = {
     "panda": ("panda0_leftfinger", "panda0_rightfinger"),
     "sawyer": ("rightpad", "leftpad"),
 }
+
+
+class Simulator(Protocol):
+    """What :class:`SimEnv` and :class:`~studio.sim.metaworld_env.MetaWorldEnv` both provide: the
+    interface the recorder and teleop sessions drive either with (see :func:`make_env`)."""
+
+    @property
+    def scene(self) -> str: ...
+    @property
+    def robot(self) -> str: ...
+    @property
+    def scene_info(self) -> scenes.SceneInfo: ...
+    @property
+    def image_size(self) -> tuple[int, int]: ...
+    @property
+    def control_dt(self) -> float: ...
+    @property
+    def task(self) -> Task | MetaWorldTask | None: ...
+    @property
+    def seed(self) -> int | None: ...
+    @property
+    def steps(self) -> int: ...
+    @property
+    def target(self) -> np.ndarray: ...
+    @property
+    def gripper_cmd(self) -> float: ...
+    @property
+    def model(self) -> mujoco.MjModel: ...
+    @property
+    def data(self) -> mujoco.MjData: ...
+    @property
+    def ee_pos(self) -> np.ndarray: ...
+
+    def reset(self, task: str, seed: int) -> None: ...
+    def step(self, target_pos: np.ndarray, gripper: float) -> None: ...
+    def success(self) -> bool: ...
+    def stages(self) -> dict[str, bool]: ...
+    def object_poses(self) -> dict[str, np.ndarray]: ...
+    def state(self) -> dict[str, np.ndarray | float]: ...
+    def camera_model(self, camera: str = "external", size: tuple[int, int] | None = None) -> CameraModel: ...
+    def render(self, camera: str = "external", size: tuple[int, int] | None = None) -> np.ndarray: ...
+    def close(self) -> None: ...
 
 
 class SimEnv:
@@ -83,18 +127,22 @@ class SimEnv:
     # ------------------------------------------------------------------ episode
     def reset(self, task: str | Task, seed: int) -> None:
         """Start an episode of ``task`` from the initial state drawn with ``seed``."""
-        task = get_task(task) if isinstance(task, str) else task
-        if task.scene != self.scene:
-            raise ValueError(f"task {task.name!r} belongs to scene {task.scene!r}, this env is {self.scene!r}")
-        self.task, self.seed = task, int(seed)
-        self.layout = task.sample_layout(self.seed)
+        found = get_task(task) if isinstance(task, str) else task
+        if found.scene != self.scene:
+            raise ValueError(
+                f"task {found.name!r} belongs to scene {found.scene!r}, this env is {self.scene!r}"
+            )
+        # A Meta-World task's scene is "metaworld", which no SimEnv has: the check above rejected it.
+        assert isinstance(found, Task)
+        layout = found.sample_layout(int(seed))
+        self.task, self.seed, self.layout = found, int(seed), layout
         m, d = self.model, self.data
-        for name, xy in self.layout.target_pos.items():
+        for name, xy in layout.target_pos.items():
             m.body(f"target_{name}").pos[:2] = xy
         mujoco.mj_resetData(m, d)
-        for name, pos in self.layout.object_pos.items():
+        for name, pos in layout.object_pos.items():
             a = self._obj_qadr[name]
-            yaw = self.layout.object_yaw.get(name, 0.0)
+            yaw = layout.object_yaw.get(name, 0.0)
             d.qpos[a : a + 3] = pos
             d.qpos[a + 3 : a + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
         self.controller.reset(d)
@@ -162,6 +210,8 @@ class SimEnv:
         return None
 
     def _stages_now(self) -> dict[str, bool]:
+        if self.task is None or self.layout is None:
+            raise RuntimeError("SimEnv.stages called before reset()")
         objects = {o: p[:3] for o, p in self.object_poses().items()}
         now = self.task.stages(objects, self.initial_objects, self.layout, self.ee_pos, self.held_object())
         for k in self._ever:

@@ -25,14 +25,14 @@ PUSH_THROUGH = 0.18  # where the grasp site ends, beyond the box centre
 
 def expert_waypoints(env: SimEnv) -> np.ndarray:
     """The expert's (5, 4) waypoints [x, y, z, gripper] for the env's current task and state."""
-    task = env.task
-    if task is None:
+    task, layout = env.task, env.layout
+    if task is None or layout is None:
         raise RuntimeError("expert_waypoints needs a reset env")
     obj = env.object_poses()[task.obj][:3]
     min_z = ControllerConfig().min_grasp_z[env.robot]
     if task.scene == "pick_place":
         grasp_z = max(obj[2], min_z)
-        tgt = env.layout.target_pos[task.target]
+        tgt = layout.target_pos[task.target]
         place_z = grasp_z + 0.01
         return np.array([
             [obj[0], obj[1], grasp_z, 1.0],

@@ -43,6 +43,7 @@ import inspect
 import os
 import re
 import warnings
+from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -79,7 +80,7 @@ class SimulationDiverged(RuntimeError):
     """The physics became non-finite; the episode cannot go on (and is never silently reset)."""
 
 
-def quaternion_orders(env_cls: type) -> tuple[str, ...]:
+def quaternion_orders(env_cls: type[Any]) -> tuple[str, ...]:
     """The order of each quaternion the Meta-World env class reports: ``"wxyz"`` or ``"xyzw"``.
 
     Read from the source of its ``_get_quat_objects``: SciPy's ``as_quat()`` gives (x, y, z, w),
@@ -89,7 +90,7 @@ def quaternion_orders(env_cls: type) -> tuple[str, ...]:
     return tuple("xyzw" if t.startswith("as_quat") else "wxyz" for t in _QUAT_TOKEN.findall(src))
 
 
-def metaworld_env_class(env_name: str) -> type:
+def metaworld_env_class(env_name: str) -> type[Any]:
     from metaworld.env_dict import ALL_V3_ENVIRONMENTS
 
     return ALL_V3_ENVIRONMENTS[env_name]
@@ -135,7 +136,9 @@ class MetaWorldEnv:
         self.info: dict = {}
         self.control_dt = CONTROL_DT
         self.max_step = MAX_STEP
-        self._mw = None
+        # The loaded task's metaworld env (a SawyerXYZEnv subclass that depends on the task); we call its
+        # private helpers, which metaworld does not type, hence Any.
+        self._mw: Any = None
         self._renderers: rendering.Renderers | None = None  # of the loaded task's model
         self._vis = mujoco.MjvOption()
         self._cameras: dict[tuple[str, int, int], CameraModel] = {}
@@ -287,9 +290,8 @@ class MetaWorldEnv:
         mujoco.mj_step(m, d, nstep=self._mw.frame_skip)
         mujoco.mj_forward(m, d)  # positions, contacts and forces of the new state, as Meta-World judges them
         if not np.all(np.isfinite(d.qpos)):
-            raise SimulationDiverged(
-                f"{self.task.name} seed {self.seed}: physics diverged at tick {self.steps + 1}"
-            )
+            name = "?" if self.task is None else self.task.name  # step() and step_action() checked it is set
+            raise SimulationDiverged(f"{name} seed {self.seed}: physics diverged at tick {self.steps + 1}")
         self.steps += 1
         self._prev_obs, self._cur_obs = self._cur_obs, self._mw._get_curr_obs_combined_no_goal()
         self._evaluate()
@@ -297,6 +299,8 @@ class MetaWorldEnv:
     def observation(self) -> np.ndarray:
         """Meta-World's fully observable 39-D observation of the current state (what its policies read):
         hand position, gripper distance, object poses (padded), the previous tick's copy, the goal."""
+        if self._cur_obs is None or self._prev_obs is None:
+            raise RuntimeError("MetaWorldEnv has no observation before the first reset(task, seed)")
         return np.hstack([self._cur_obs, self._prev_obs, self._mw._get_pos_goal()])
 
     def _evaluate(self) -> None:
@@ -385,15 +389,24 @@ class MetaWorldEnv:
             )
         return cam
 
+    def _loaded_renderers(self) -> rendering.Renderers:
+        if self._renderers is None:
+            raise RuntimeError("MetaWorldEnv cannot render before the first reset(task, seed)")
+        return self._renderers
+
     def render(self, camera: str = "external", size: tuple[int, int] | None = None) -> np.ndarray:
         """RGB image (H, W, 3) uint8 from ``"external"`` or one of Meta-World's cameras."""
         size = size or (self.image_size if camera == "external" else self.depth_size)
-        return self._renderers.render(self.data, self._camera_id(camera), size, scene_option=self._vis)
+        return self._loaded_renderers().render(
+            self.data, self._camera_id(camera), size, scene_option=self._vis
+        )
 
     def render_depth(self, camera: str = "external", size: tuple[int, int] | None = None) -> np.ndarray:
         """Depth image (H, W) float32, metres along the camera's optical axis."""
         size = size or (self.image_size if camera == "external" else self.depth_size)
-        return self._renderers.render(self.data, self._camera_id(camera), size, depth=True, scene_option=self._vis)
+        return self._loaded_renderers().render(
+            self.data, self._camera_id(camera), size, depth=True, scene_option=self._vis
+        )
 
     def close(self) -> None:
         if self._renderers is not None:

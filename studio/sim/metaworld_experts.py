@@ -18,6 +18,8 @@ returned with ``success=False``; collection discards them.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +36,10 @@ def scripted_policy(task: str):
     """A fresh instance of the ``metaworld.policies`` policy of ``task`` (``metaworld/<v3 name>``)."""
     from metaworld.policies import ENV_POLICY_MAP
 
-    return ENV_POLICY_MAP[get_metaworld_task(task).env_name]()
+    # The map's values are concrete subclasses of the abstract Policy its type names (mypy would refuse to
+    # instantiate a type[Policy]).
+    policy_cls: Callable[[], Any] = ENV_POLICY_MAP[get_metaworld_task(task).env_name]
+    return policy_cls()
 
 
 def expert_action(policy, env: MetaWorldEnv) -> np.ndarray:
@@ -51,6 +56,8 @@ def run_expert(
     after_success: int = AFTER_SUCCESS,
 ) -> int | None:
     """Run the scripted policy on the env's current episode; the tick of first success, or None."""
+    if env.task is None:
+        raise RuntimeError("run_expert: reset the env to the task's episode first")
     policy = scripted_policy(env.task.name)
     first = None
     for _ in range(max_ticks):
@@ -123,19 +130,21 @@ def expert_waypoints(
     try:
         env.reset(task, seed)
         policy = scripted_policy(task)
-        hand, closed, first = [], [], None
+        hand_path: list[np.ndarray] = []
+        closed_path: list[float] = []
+        first = None
         for _ in range(MAX_TICKS):
             action = expert_action(policy, env)
             env.step_action(action)
-            hand.append(env.ee_pos.copy())
-            closed.append(float(action[3] > 0))
+            hand_path.append(env.ee_pos.copy())
+            closed_path.append(float(action[3] > 0))
             if first is None and env.success_now():
                 first = env.steps
             if first is not None and env.steps >= first + ORACLE_SETTLE:
                 break
         if first is None and strict:
             raise RuntimeError(f"the scripted policy of {task} failed on seed {seed}")
-        hand, closed = np.asarray(hand), np.asarray(closed)
+        hand, closed = np.asarray(hand_path), np.asarray(closed_path)
         idx = np.round(np.linspace(0, len(hand) - 1, n + 1)[1:]).astype(int)
         closes = np.flatnonzero(np.diff(closed, prepend=0.0) > 0)
         if len(closes) and n > 1:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from studio.sim.env import SimEnv
+from studio.sim.env import Simulator
 from studio.sim.recording import Recording
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -19,7 +19,7 @@ _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 class Recorder:
     """Collects one episode of ``env``; call :meth:`tick` after reset and after every step."""
 
-    def __init__(self, env: SimEnv):
+    def __init__(self, env: Simulator):
         self.env = env
         self.rows: list[dict] = []
         self.states: list[np.ndarray] = []
@@ -44,6 +44,8 @@ class Recorder:
     def finish(self, n_frames: int = 30, success: bool | None = None) -> Recording:
         """Render the frames and return the :class:`Recording`. The env's current state is kept."""
         env = self.env
+        if env.task is None or env.seed is None:
+            raise RuntimeError("Recorder.finish: the env has no episode (reset it before recording)")
         keep = np.empty(self._size)
         mujoco.mj_getState(env.model, env.data, keep, _STATE)
         steps = self.frame_steps(n_frames)

@@ -22,7 +22,7 @@ import traceback
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import viser
@@ -67,6 +67,13 @@ class TeleopStats:
             self.push_ms.clear()
 
 
+class Panel(Protocol):
+    """What a tab's panels provide: a periodic refresh and closing with the tab."""
+
+    def refresh(self) -> None: ...
+    def close(self) -> None: ...
+
+
 class StudioTab:
     """One browser tab: its scene view, its panels, and the threads that keep them current."""
 
@@ -93,7 +100,6 @@ class StudioTab:
         gui.configure_theme(control_width="large", show_logo=False)
         self.view_note = gui.add_markdown("")
         self.back_to_teleop = gui.add_button("Back to the live teleop scene", visible=False)
-        self.back_to_teleop.on_click(lambda _: self.run(self.teleop.show_live, SHOW_LIVE))
         tabs = gui.add_tab_group()
         with tabs.add_tab("Teleop", icon=viser.Icon.HAND_GRAB):
             self.teleop = TeleopPanel(self)
@@ -109,7 +115,8 @@ class StudioTab:
             self.inspector = InspectorPanel(self)
         with tabs.add_tab("Workers", icon=viser.Icon.SERVER):
             self.workers = WorkersPanel(self)
-        self.panels = [
+        self.back_to_teleop.on_click(lambda _: self.run(self.teleop.show_live, SHOW_LIVE))
+        self.panels: list[Panel] = [
             self.teleop,
             self.upload,
             self.datasets,
@@ -298,6 +305,8 @@ class StudioApp:
 
     @property
     def url(self) -> str:
+        if self.server is None:
+            raise RuntimeError("the studio's web server is not running")
         host = self.server.get_host()
         return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.server.get_port()}"
 

@@ -14,7 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from studio.backend import messages as msg
-from studio.backend.jobs import JobClient
+from studio.backend.jobs import JobClient, JobWatch
 
 #: Progress records kept per job (training curves come from the run's metrics file when it is readable).
 MAX_HISTORY = 5000
@@ -35,7 +35,7 @@ class TrackedJob:
         self.poses_seen = 0
         self._pose_listeners: list[Callable[[msg.PoseFrame], None]] = []
         self._lock = threading.Lock()
-        self.watch = None
+        self.watch: JobWatch | None = None
         self.created = time.time()
 
     @property
@@ -104,15 +104,16 @@ class JobBoard:
                 return tracked
             tracked = TrackedJob(job, kind, spec or {}, started_by)
             self._jobs[job] = tracked
-        tracked.watch = self.client.watch(
+        watch = self.client.watch(
             job,
             on_status=tracked._on_status,
             on_progress=tracked._on_progress,
             on_artifact=tracked._on_artifact,
             on_poses=tracked._on_poses if kind == "rollout" else None,
         )
-        if tracked.watch.status is not None:
-            tracked.status = tracked.watch.status
+        tracked.watch = watch
+        if watch.status is not None:
+            tracked.status = watch.status
         return tracked
 
     def get(self, job: str) -> TrackedJob | None:

@@ -157,7 +157,7 @@ class RunRegistry:
         return [_shipped(f) for f in files]
 
     def runs(self) -> list[RunInfo]:
-        out = []
+        out: list[RunInfo] = []
         if not self.runs_dir.is_dir():
             return out
         for d in sorted(self.runs_dir.iterdir()):
@@ -250,7 +250,8 @@ class RunRegistry:
         if catalog.has_checkpoint(ck.id):
             return
         info = next((r for r in self.runs() if r.id == ck.run_id), None)
-        status = {"finished": "done", "cancelled": "cancelled"}.get(info.ended if info else "", "running")
+        ended = (info.ended if info else None) or ""  # a run without an end is still running
+        status = {"finished": "done", "cancelled": "cancelled"}.get(ended, "running")
         name = SHIPPED_RUN_NAME if ck.run_id is None else run_id
         catalog.ensure_checkpoint(
             CheckpointRecord(id=ck.id, run_id=run_id, step=info.step if info else 0, path=ck.path,

@@ -113,7 +113,7 @@ class SceneView:
         self._lock = threading.RLock()
         self._frustum: viser.CameraFrustumHandle | None = None
         self._camera_key: tuple | None = None
-        self._overlays: dict[str, list] = {}
+        self._overlays: dict[str, list[viser.SceneNodeHandle]] = {}
         self.updates_sent = 0
         self.faces_shown = 0
 
@@ -145,7 +145,7 @@ class SceneView:
                         f"{self.root}/b{g.body}/g{i}",
                         mesh.vertices.astype(np.float32),
                         mesh.faces.astype(np.uint32),
-                        color=tuple(int(255 * c) for c in rgba[:3]),
+                        color=(int(255 * rgba[0]), int(255 * rgba[1]), int(255 * rgba[2])),
                         opacity=float(rgba[3]) if rgba[3] < 1 else None,
                         flat_shading=g.type != "mesh",
                         cast_shadow=False,
@@ -223,7 +223,7 @@ class SceneView:
         wps = np.asarray(waypoints, dtype=np.float64).reshape(-1, 4)
         with self._lock:
             self.clear_overlay(name)
-            handles = []
+            handles: list[viser.SceneNodeHandle] = []
             with self.client.atomic():
                 if len(wps) >= 2:
                     handles.append(self.scene.add_spline_catmull_rom(
@@ -248,7 +248,7 @@ class SceneView:
         closed = np.zeros(len(pts), bool) if gripper is None else np.asarray(gripper).reshape(-1) > 0.5
         with self._lock:
             self.clear_overlay(name)
-            handles = []
+            handles: list[viser.SceneNodeHandle] = []
             if len(pts) < 2:
                 self._overlays[name] = handles
                 return

@@ -71,6 +71,7 @@ def test_masked_lengths_equal_unpadded_and_padding_is_inert():
         assert (gx[b, lx[b] :] == 0).all() and (gy[b, ly[b] :] == 0).all()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("normalize", [False, True])
 def test_matches_tslearn(normalize):
     from tslearn.metrics import SoftDTWLossPyTorch

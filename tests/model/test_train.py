@@ -47,6 +47,7 @@ def test_one_cycle_schedule_goes_from_max_to_final():
     assert warm[0] == pytest.approx(1 / 25) and max(warm) == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_tiny_training_run_decreases_the_loss_and_writes_its_run_directory(tmp_path):
     data = SyntheticPairs(n_tasks=2, episodes_per_task=2)
     run = tiny_run_config(max_steps=30, lr_max=3e-3, val_every=15, log_every=1, **NO_AUG)
@@ -70,7 +71,7 @@ def test_tiny_training_run_decreases_the_loss_and_writes_its_run_directory(tmp_p
     "overrides",
     [
         ["model.world_model=false"],
-        ["train.wm_loss=false"],
+        pytest.param(["train.wm_loss=false"], marks=pytest.mark.slow),  # measured 20.4 s
         ["train.stop_gradient=false"],
         ["model.pool_before_wm=true"],
         ["model.single_step=true"],
@@ -278,6 +279,7 @@ def test_demonstration_effect_is_zero_for_the_same_video_and_positive_for_anothe
     assert demonstration_effect(core, own, own) == (0.0, 0)  # no other task to swap in
 
 
+@pytest.mark.slow
 def test_validation_reports_the_demonstration_effect(tmp_path):
     data = SyntheticPairs(n_tasks=2, episodes_per_task=2)
     run = tiny_run_config(max_steps=4, val_every=4, **NO_AUG)
@@ -286,6 +288,7 @@ def test_validation_reports_the_demonstration_effect(tmp_path):
     assert val and val[-1]["val_demo_effect_m"] > 0.0
 
 
+@pytest.mark.slow
 def test_the_cpu_architecture_learns_to_follow_the_demonstration():
     """On the synthetic task (go where the demonstrator's square went; four targets) the agent's first frame says
     nothing about the target, so a low final error needs the demonstration. The ``cpu`` preset's π and 𝒲
@@ -337,6 +340,7 @@ def test_augmentation_starts_after_the_clean_warm_up():
     assert loss(5, torch.Generator().manual_seed(1)) != clean  # from half-way on: augmented
 
 
+@pytest.mark.slow
 def test_no_world_model_loss_during_its_warm_up(tmp_path):
     run = tiny_run_config(max_steps=4, batch_size=4, val_every=100, log_every=1, alpha_warmup=0.5)
     train(run, SyntheticPairs(), None, tmp_path, show_progress=False)
@@ -345,6 +349,7 @@ def test_no_world_model_loss_during_its_warm_up(tmp_path):
     assert "loss_wm" not in logged[2] and logged[3]["loss_wm"] > 0.0  # no target encodings until then
 
 
+@pytest.mark.slow
 def test_the_demonstration_task_loss_trains_and_its_head_is_saved_with_the_checkpoint(tmp_path):
     from studio.model.train import model_from_checkpoint
 
@@ -364,6 +369,7 @@ def test_the_demonstration_task_loss_trains_and_its_head_is_saved_with_the_check
     assert all("loss_task" not in r for r in records(tmp_path / "plain"))
 
 
+@pytest.mark.slow
 def test_a_checkpoint_without_the_task_head_resumes_and_inits_a_run_that_adds_one(tmp_path):
 
     first = tiny_run_config(max_steps=2, batch_size=4, val_every=100)
@@ -385,6 +391,7 @@ def test_a_checkpoint_without_the_task_head_resumes_and_inits_a_run_that_adds_on
                for k in trained if trained[k].is_floating_point() and "running" not in k)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_parts_labels_give_the_head_one_group_per_part_and_replace_a_task_head_on_init(tmp_path):
     from studio.model.train import model_from_checkpoint
 
@@ -412,6 +419,7 @@ def test_parts_labels_give_the_head_one_group_per_part_and_replace_a_task_head_o
     assert train(again, push_pairs(), None, tmp_path / "parts", show_progress=False).step == 4
 
 
+@pytest.mark.slow
 def test_a_no_world_model_checkpoint_grows_into_the_full_model_on_init(tmp_path):
     ablated = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(["model.world_model=false"])
     train(ablated, SyntheticPairs(), None, tmp_path / "a", show_progress=False)
@@ -429,6 +437,7 @@ def test_a_no_world_model_checkpoint_grows_into_the_full_model_on_init(tmp_path)
         train(ablated, SyntheticPairs(), None, tmp_path / "c", show_progress=False, init=tmp_path / "b" / "last.pt")
 
 
+@pytest.mark.slow
 def test_frozen_parts_keep_their_weights_and_batchnorm_statistics_while_the_rest_trains(tmp_path):
     ablated = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(["model.world_model=false"])
     train(ablated, SyntheticPairs(), None, tmp_path / "a", show_progress=False)

@@ -39,6 +39,7 @@ def test_registered_in_the_cli_table():
     assert COMMANDS["train-decoder"][0] == "studio.model.decoder_command"
 
 
+@pytest.mark.slow
 def test_trains_and_resumes_through_the_command(tmp_path, monkeypatch, capsys):
     opened = []
 
@@ -96,6 +97,7 @@ def test_missing_arguments_exit():
         _args("--out", "y")
 
 
+@pytest.mark.slow
 def test_trains_on_a_real_episode_store(tmp_path):
     """`--data` opens studio.data's PairDataset: a tiny store of synthetic recordings trains end to end."""
     import sys

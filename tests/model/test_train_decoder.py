@@ -28,6 +28,7 @@ def model_ckpt(tmp_path_factory):
     return out / "last.pt"
 
 
+@pytest.mark.slow
 def test_decoder_learns_with_the_model_frozen(model_ckpt, tmp_path):
     before = {k: v.clone() for k, v in load_checkpoint(model_ckpt)["model"].items()}
     cfg = DecoderConfig(

@@ -38,7 +38,8 @@ TINY = [
     "train.checkpoint_every=2", "train.val_every=1000", "train.pairs_per_expert=2",
 ]  # fmt: skip
 
-pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.timeout(420)]
+# Tests that share the app are slow one by one (marked); the fast ones stay in `-m "not slow"` runs.
+pytestmark = [pytest.mark.browser, pytest.mark.timeout(420)]
 
 
 def _launch(p):
@@ -271,6 +272,7 @@ def _screen_point(page, client, point: np.ndarray) -> tuple[float, float]:
 
 
 # ---------------------------------------------------------------------------------------------- panels
+@pytest.mark.slow
 def test_teleop_records_and_saves_an_episode(studio, page, shots):
     tab = _tab(studio)
     tp = tab.teleop
@@ -322,6 +324,7 @@ def test_teleop_records_and_saves_an_episode(studio, page, shots):
     assert np.linalg.norm(arrays["ee_pos_world"][-1] - arrays["ee_pos_world"][0]) > 0.05
 
 
+@pytest.mark.slow  # fast by itself, but it opens the episode test_teleop_records_... stores
 def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, page, shots, tmp_path):
     from studio.data.video import write_video
 
@@ -363,6 +366,7 @@ def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, pa
     _shot(page, shots / "data.png")
 
 
+@pytest.mark.slow
 def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
     tab = _tab(studio)
     train = tab.train
@@ -390,6 +394,7 @@ def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
     assert train.loss_plot.data[0][-1] == 4 and np.isfinite(train.loss_plot.data[2]).all()
 
 
+@pytest.mark.slow
 def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
     tab = _tab(studio)
     im = tab.imitate
@@ -429,6 +434,7 @@ def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
     assert row and row[0].checkpoint_id is None
 
 
+@pytest.mark.slow
 def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots):
     """The run trained from the UI, with a latent decoder, as the active policy: Plan shows decoded latents."""
     tab = _tab(studio)
@@ -452,6 +458,7 @@ def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots
     assert np.isfinite(im.plan_wps).all()
 
 
+@pytest.mark.slow
 def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     tab = _tab(studio)
     ins = tab.inspector
@@ -489,6 +496,7 @@ def test_workers_panel_lists_the_embedded_workers(studio, page, shots):
     _shot(page, shots / "workers.png")
 
 
+@pytest.mark.slow
 def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
     """The policy shipped with the studio, on a held-out task: Plan shows waypoints and decoded latent images,
     Execute finishes with an outcome recorded against it."""
@@ -522,6 +530,7 @@ def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
     assert row and row[0].checkpoint_id == shipped[0].id
 
 
+@pytest.mark.slow
 def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shots):
     """Meta-World in the browser: choose the scene in the Teleop tab's dropdown (the robot choice narrows to the
     Sawyer), drag the arm, record and save; the Imitate tab then offers the recording as a demonstration of its

@@ -12,8 +12,10 @@ from __future__ import annotations
 import json
 import os
 import time
+from typing import Any
 
 import numpy as np
+import viser
 import viser.uplot as uplot
 
 from studio.backend.jobs import new_job_id
@@ -47,8 +49,8 @@ class TrainPanel:
         self.tab = tab
         self.app = tab.app
         self.job_id: str | None = None
-        self._task_boxes: dict[str, object] = {}
-        self._shown: dict[str, object] = {}
+        self._task_boxes: dict[str, viser.GuiCheckboxHandle] = {}
+        self._shown: dict[str, Any] = {}  # what is on screen: times, job ids, texts
         gui = tab.client.gui
         self.gui = gui
         gui.add_markdown(HINT)

@@ -1,0 +1,30 @@
+"""Suite-wide pytest hooks.
+
+The ``slow`` marker (pyproject.toml: "takes more than ~20 s") lets ``./run test -m "not slow"`` be a quick
+run. So that the marker keeps up with the tests, the terminal summary lists tests that took longer than that
+(setup and teardown included) without it. It is a hint only: no test ever fails because of its duration.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+SLOW_S = 20.0
+
+_seconds: dict[str, float] = {}
+_unmarked: set[str] = set()
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    _seconds[report.nodeid] = _seconds.get(report.nodeid, 0.0) + report.duration
+    if "slow" not in report.keywords:
+        _unmarked.add(report.nodeid)
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    late = sorted(((s, n) for n, s in _seconds.items() if s > SLOW_S and n in _unmarked), reverse=True)
+    if not late:
+        return
+    terminalreporter.write_sep("-", f"over {SLOW_S:.0f} s without @pytest.mark.slow (consider marking them)")
+    for seconds, nodeid in late:
+        terminalreporter.write_line(f"{seconds:7.1f} s  {nodeid}")
