@@ -267,7 +267,7 @@ class JobRunner:
         except zenoh.ZError:
             bus.log.warning("could not publish on %s (session closed?)", key)
 
-    def _status(self, assign: msg.JobAssign, state: str, reason: str = "") -> msg.JobStatus:
+    def _status(self, assign: msg.JobAssign, state: msg.JobState, reason: str = "") -> msg.JobStatus:
         return msg.JobStatus(
             job=assign.job,
             kind=assign.kind,
@@ -336,6 +336,7 @@ class JobRunner:
     # ------------------------------------------------------------------ running
     def _run(self, handler: Handler, ctx: JobContext, assign: msg.JobAssign) -> None:
         result: dict[str, Any] | None = None
+        state: msg.JobState
         try:
             result = handler(ctx)
             if result is not None and not isinstance(result, dict):
