@@ -57,7 +57,10 @@ NO_WORLD_MODEL = ("model.world_model=false",)
 # waypoint head), and each one's default (train, refine, grow) steps. The no-world-model schedule reached 100 %
 # held-out in 29 min end to end (docs/results.md); OSVI-WM trains it first, then grows 𝒲 on it.
 VARIANTS: tuple[str, ...] = ("osvi-wm", "no-world-model")
-VARIANT_STEPS: dict[str, tuple[int, int, int]] = {"osvi-wm": (1600, 1100, 700), "no-world-model": (1600, 1100, 0)}
+VARIANT_STEPS: dict[str, tuple[int, int, int]] = {
+    "osvi-wm": (1600, 1100, 700),
+    "no-world-model": (1600, 1100, 0),
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -132,7 +135,10 @@ def run(args: argparse.Namespace) -> int:
         return rc or studio(["collect", "--robot", "panda", "--tasks", "train", *episodes, *common])
 
     _stage("collect", times, collect)
-    def train(run_dir: Path, steps: int, seed: int, settings: tuple[str, ...], init: Path | None = None) -> int:
+
+    def train(
+        run_dir: Path, steps: int, seed: int, settings: tuple[str, ...], init: Path | None = None
+    ) -> int:
         return studio(["train", "--config", "cpu", "--data", str(root), "--out", str(run_dir), "--steps", str(steps),
                        "--seed", str(seed), "--threads", str(args.workers), *(["--init", str(init)] if init else []),
                        "--set", *settings, *args.set])  # fmt: skip

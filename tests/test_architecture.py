@@ -90,8 +90,12 @@ def imports_of(module: str, path: Path, modules: dict[str, Path]) -> Iterator[Im
             names = tuple(a.name for a in node.names)
             subs = [f"{target}.{n}" for n in names if f"{target}.{n}" in modules]
             if len(subs) < len(names):  # some names are attributes of ``target`` itself
-                yield Import(module, _nearest(target, modules), node.lineno,
-                             tuple(n for n in names if f"{target}.{n}" not in modules))
+                yield Import(
+                    module,
+                    _nearest(target, modules),
+                    node.lineno,
+                    tuple(n for n in names if f"{target}.{n}" not in modules),
+                )
             for sub in subs:
                 yield Import(module, sub, node.lineno)
 
@@ -183,8 +187,10 @@ def layer_violations(imports: list[Import]) -> list[str]:
         target = layer(imp.imported)
         if allowed is None or target == "package" or target in allowed:
             continue
-        out.append(f"{imp.importer} (layer {layer(imp.importer)}) imports {imp.imported} (layer {target}), "
-                   f"line {imp.line}")
+        out.append(
+            f"{imp.importer} (layer {layer(imp.importer)}) imports {imp.imported} (layer {target}), "
+            f"line {imp.line}"
+        )
     return out
 
 
@@ -202,14 +208,20 @@ def private_uses(modules: dict[str, Path]) -> list[str]:
             if isinstance(node, ast.Import):
                 for a in node.names:
                     if a.name.startswith("studio"):
-                        bound[a.asname or a.name.split(".")[0]] = (a.asname and a.name) or a.name.split(".")[0]
+                        bound[a.asname or a.name.split(".")[0]] = (a.asname and a.name) or a.name.split(".")[
+                            0
+                        ]
             elif isinstance(node, ast.ImportFrom):
                 target = _resolve(m, p.name == "__init__.py", node)
                 for a in node.names:
                     if f"{target}.{a.name}" in modules:
                         bound[a.asname or a.name] = f"{target}.{a.name}"
         for node in ast.walk(tree):
-            if not isinstance(node, ast.Attribute) or not node.attr.startswith("_") or node.attr.startswith("__"):
+            if (
+                not isinstance(node, ast.Attribute)
+                or not node.attr.startswith("_")
+                or node.attr.startswith("__")
+            ):
                 continue
             owner = _dotted(node.value)
             if owner is None or owner.split(".")[0] not in bound:
@@ -243,15 +255,18 @@ def test_the_parser_sees_imports_at_every_depth_and_resolves_relative_ones(tmp_p
     (pkg / "__init__.py").write_text("")
     (pkg / "a" / "__init__.py").write_text("from . import b\n")
     (pkg / "a" / "b.py").write_text("def f():\n    from .c import g\n    return g\n")
-    (pkg / "a" / "c.py").write_text("import studio.a.b\nfrom studio.a.b import _hidden\n\ndef g():\n"
-                                    "    return studio.a.b._x\n")
+    (pkg / "a" / "c.py").write_text(
+        "import studio.a.b\nfrom studio.a.b import _hidden\n\ndef g():\n    return studio.a.b._x\n"
+    )
     modules = find_modules(pkg)
     edges, _ = import_graph(modules)
     assert edges["studio.a"] == {"studio.a.b"}
     assert edges["studio.a.b"] == {"studio.a.c"}  # inside a function
     assert cycles(edges) == [["studio.a.b", "studio.a.c"]]
-    assert sorted(private_uses(modules)) == ["studio.a.c imports private studio.a.b._hidden, line 2",
-                                             "studio.a.c uses private studio.a.b._x, line 5"]
+    assert sorted(private_uses(modules)) == [
+        "studio.a.c imports private studio.a.b._hidden, line 2",
+        "studio.a.c uses private studio.a.b._x, line 5",
+    ]
 
 
 def test_no_import_cycles(graph):

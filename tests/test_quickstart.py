@@ -35,16 +35,25 @@ def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, 
     assert base["config"]["train"]["expert_hflip"] == 0.5 and refined["config"]["train"]["alpha_warmup"] == 0
     assert refined["config"]["train"]["demo_task_weight"] == 1.0 and refined["config"]["train"]["seed"] == 1
     # OSVI-WM is trained without its world model first, then grown: 𝒲 is added to the refined weights.
-    assert base["config"]["model"]["world_model"] is False and refined["config"]["model"]["world_model"] is False
+    assert (
+        base["config"]["model"]["world_model"] is False and refined["config"]["model"]["world_model"] is False
+    )
     assert grown["config"]["model"]["world_model"] is True and grown["config"]["train"]["seed"] == 2
     # Pairs are mirrored in every stage; the grow stage keeps the encoder it inherits.
     assert base["config"]["train"]["hflip"] == 0.5 and grown["config"]["train"]["hflip"] == 0.5
     assert tuple(grown["config"]["train"]["freeze"]) == ("encoder",) and not base["config"]["train"]["freeze"]
-    assert all(torch.equal(refined["model"][k], grown["model"][k]) for k in refined["model"] if k.startswith("encoder."))
+    assert all(
+        torch.equal(refined["model"][k], grown["model"][k])
+        for k in refined["model"]
+        if k.startswith("encoder.")
+    )
     grow_run = json.loads((tmp_path / "run" / "grow" / "config.json").read_text())
     assert grow_run["init"] == str(tmp_path / "run" / "refine" / "best.pt")
     assert summary["variant"] == "osvi-wm"
-    assert summary["rollouts"] == 2 and set(summary["tasks"]) == {"pick_place/bar->blue", "pick_place/bar->yellow"}
+    assert summary["rollouts"] == 2 and set(summary["tasks"]) == {
+        "pick_place/bar->blue",
+        "pick_place/bar->yellow",
+    }
     assert 0.0 <= summary["held_out_success"] <= 1.0
     out = capsys.readouterr().out
     assert "held-out success" in out and "total" in out

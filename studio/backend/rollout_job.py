@@ -39,7 +39,9 @@ def run_rollout_job(ctx) -> dict:
     robot = str(spec.get("robot", "sawyer" if task.scene == "metaworld" else "panda"))
     replans = int(spec.get("replans", 0))
     if ctx.data_dir is None:
-        raise ValueError("rollout jobs need a worker started with --data-dir (the store with the demonstration)")
+        raise ValueError(
+            "rollout jobs need a worker started with --data-dir (the store with the demonstration)"
+        )
     store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     # One simulator per job, closed by the job's own thread: an EGL context current in one (still living)
     # thread cannot be made current in another, so a simulator shared across job threads fails to render.
@@ -60,7 +62,9 @@ def run_rollout_job(ctx) -> dict:
             if kind == "waypoint":
                 msg = f"waypoint {info['index'] + 1} of {info['total']}"
             elif kind == "grasp_correction":
-                msg = f"grasp correction {info['iteration']}/3" + ("" if info.get("found") else " (nothing seen)")
+                msg = f"grasp correction {info['iteration']}/3" + (
+                    "" if info.get("found") else " (nothing seen)"
+                )
             elif kind == "replanning":
                 msg = f"re-planning ({info['attempt']} of {info['of']})"
             elif kind == "planning":
@@ -96,11 +100,28 @@ def run_rollout_job(ctx) -> dict:
             if clock - last_pose[0] >= 1 / 30:
                 last_pose[0] = clock
                 seq[0] += 1
-                ctx.poses(pose_frame(env.data, seq=seq[0], step=env.steps, ack_seq=0, ee_pos=env.ee_pos,
-                                     gripper=env.gripper_cmd))
+                ctx.poses(
+                    pose_frame(
+                        env.data,
+                        seq=seq[0],
+                        step=env.steps,
+                        ack_seq=0,
+                        ee_pos=env.ee_pos,
+                        gripper=env.gripper_cmd,
+                    )
+                )
 
-        out = run_rollout(env, planner, expert_frames, task.name, int(spec["seed"]), replans=replans,
-                          on_event=on_event, on_tick=on_tick, should_stop=lambda: ctx.cancelled)
+        out = run_rollout(
+            env,
+            planner,
+            expert_frames,
+            task.name,
+            int(spec["seed"]),
+            replans=replans,
+            on_event=on_event,
+            on_tick=on_tick,
+            should_stop=lambda: ctx.cancelled,
+        )
         ctx.raise_if_cancelled()
         checkpoint = str(spec["checkpoint"])
         if checkpoint != "oracle":
@@ -109,11 +130,21 @@ def run_rollout_job(ctx) -> dict:
         checkpoint_id = spec.get("checkpoint_id")
         if checkpoint != "oracle" and not checkpoint_id:
             checkpoint_id = register_checkpoint(store.root, checkpoint)
-        record = store_rollout(store, out, expert_episode_id=str(spec["expert_episode_id"]),
-                               checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
-                               extra={"job": ctx.job, "checkpoint": checkpoint})
-        return {"rollout_id": record.id, "success": out.success, "failure_stage": out.failure_stage,
-                "replans": out.replans, "planning_time_s": out.planning_time_s, "episode_id": record.episode_id,
-                "stages": out.stages}
+        record = store_rollout(
+            store,
+            out,
+            expert_episode_id=str(spec["expert_episode_id"]),
+            checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
+            extra={"job": ctx.job, "checkpoint": checkpoint},
+        )
+        return {
+            "rollout_id": record.id,
+            "success": out.success,
+            "failure_stage": out.failure_stage,
+            "replans": out.replans,
+            "planning_time_s": out.planning_time_s,
+            "episode_id": record.episode_id,
+            "stages": out.stages,
+        }
     finally:
         env.close()

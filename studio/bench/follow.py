@@ -25,8 +25,14 @@ VARIANTS: dict[str, dict] = {
     "divided+cells 2 blocks": {"action_attention": "divided", "wm_tokens": "cells", "action_blocks": 2},
     "cross+cells": {"action_attention": "cross", "wm_tokens": "cells"},
     "cross+cells 2 blocks": {"action_attention": "cross", "wm_tokens": "cells", "action_blocks": 2},
-    "cross+cells 2 blocks wide": {"action_attention": "cross", "wm_tokens": "cells", "action_blocks": 2,
-                                  "state_channels": 32, "action_attn_dim": 32, "action_mlp_dim": 64},
+    "cross+cells 2 blocks wide": {
+        "action_attention": "cross",
+        "wm_tokens": "cells",
+        "action_blocks": 2,
+        "state_channels": 32,
+        "action_attn_dim": 32,
+        "action_mlp_dim": 64,
+    },
     "joint+cells 2 blocks": {"wm_tokens": "cells", "action_blocks": 2},
 }
 NO_AUGMENTATION = dict(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, brightness=0.0, contrast=0.0,
@@ -36,15 +42,21 @@ NO_AUGMENTATION = dict(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, bri
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=300, help="training steps per variant")
     parser.add_argument("--val-points", type=int, default=3, help="validations spread over the run")
-    parser.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, from: {', '.join(VARIANTS)}")
+    parser.add_argument(
+        "--variants", default=",".join(VARIANTS), help=f"comma-separated, from: {', '.join(VARIANTS)}"
+    )
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--lr", type=float, default=3e-3, help="peak learning rate of the one-cycle schedule")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--task", choices=("follow", "match"), default="follow",
                         help="follow: fixed markers, the demonstration names the target; match: markers shuffled per "
                              "episode, the agent must find the demonstrated colour in its own frame")  # fmt: skip
-    parser.add_argument("--demo-task-weight", type=float, default=0.0,
-                        help="weight of the auxiliary demonstration-task loss (TrainConfig.demo_task_weight)")
+    parser.add_argument(
+        "--demo-task-weight",
+        type=float,
+        default=0.0,
+        help="weight of the auxiliary demonstration-task loss (TrainConfig.demo_task_weight)",
+    )
     parser.add_argument("--episodes", type=int, default=0,
                         help="episodes per task and role (default 3 for follow, 12 for match)")  # fmt: skip
 

@@ -36,7 +36,9 @@ import numpy as np
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--checkpoint", required=True, help="checkpoint or policy file")
-    parser.add_argument("--data-dir", required=True, help="episode store with Sawyer experts and Panda agents")
+    parser.add_argument(
+        "--data-dir", required=True, help="episode store with Sawyer experts and Panda agents"
+    )
     parser.add_argument("--scene", default="pick_place", help="scene whose split names the tasks")
     parser.add_argument("--tasks", default="held-out", help="held-out | train | comma-separated task names")
     parser.add_argument("--scenes", type=int, default=12, help="agent episodes (scenes) per task")

@@ -40,8 +40,14 @@ def measure(args: argparse.Namespace) -> dict:
     from studio.sim.experts import run_expert
     from studio.sim.tasks import list_tasks
 
-    out: dict = {"machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                             "mujoco": mujoco.__version__, "gl": os.environ.get("MUJOCO_GL", "")}}
+    out: dict = {
+        "machine": {
+            "cpus": os.cpu_count(),
+            "processor": platform.processor() or platform.machine(),
+            "mujoco": mujoco.__version__,
+            "gl": os.environ.get("MUJOCO_GL", ""),
+        }
+    }
     env = SimEnv("pick_place", "panda")
     env.reset("pick_place/cube->red", 0)
     m, d = env.model, env.data

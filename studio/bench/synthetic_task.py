@@ -56,7 +56,15 @@ class SyntheticPairs:
             for a in range(episodes_per_task)
         ]
         self.expert_indices = np.array([t * episodes_per_task + e for t, e, _ in self.pairs])
-        self._key: tuple[object, ...] = (n_tasks, episodes_per_task, image_size, n_expert, n_agent, path_points, self.seed)
+        self._key: tuple[object, ...] = (
+            n_tasks,
+            episodes_per_task,
+            image_size,
+            n_expert,
+            n_agent,
+            path_points,
+            self.seed,
+        )
         if shuffle_targets:
             self._key += ("shuffled",)
 
@@ -104,7 +112,9 @@ class SyntheticPairs:
         ag_idx = np.linspace(0, len(agent) - 1, self.n_agent).round().astype(int)
         path_idx = np.linspace(0, len(agent) - 1, self.path_points).round().astype(int)
         return {
-            "expert_frames": np.stack([self._render(expert[k, :3], (40, 40, 230), ex_layout) for k in ex_idx]),
+            "expert_frames": np.stack(
+                [self._render(expert[k, :3], (40, 40, 230), ex_layout) for k in ex_idx]
+            ),
             "agent_frames": np.stack([self._render(agent[k, :3], (230, 40, 40), ag_layout) for k in ag_idx]),
             "path": agent[path_idx].astype(np.float32),
             "K": self.K.copy(),

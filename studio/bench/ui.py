@@ -54,10 +54,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-faces", type=int, default=None,
                         help="triangle budget per mesh in the browser (default: the studio's, scene_view.MAX_FACES; "
                              "0 = the scene's own meshes)")  # fmt: skip
-    parser.add_argument("--dpr", type=float, default=None,
-                        help="fixed canvas pixel ratio (viser's fixedDpr URL parameter; default: viser's adaptive one)")
-    parser.add_argument("--pose-hz", type=float, default=None,
-                        help="cap on pose frames per second to a tab (default: the studio's, app.MAX_POSE_HZ)")
+    parser.add_argument(
+        "--dpr",
+        type=float,
+        default=None,
+        help="fixed canvas pixel ratio (viser's fixedDpr URL parameter; default: viser's adaptive one)",
+    )
+    parser.add_argument(
+        "--pose-hz",
+        type=float,
+        default=None,
+        help="cap on pose frames per second to a tab (default: the studio's, app.MAX_POSE_HZ)",
+    )
     parser.add_argument("--webgl", choices=tuple(WEBGL_ARGS), default="llvmpipe",
                         help="software WebGL backend of the headless browser")  # fmt: skip
     parser.add_argument("--chromium", default=CHROMIUM, help="Chromium executable for Playwright")
@@ -183,7 +191,9 @@ def measure(args: argparse.Namespace) -> dict:
                 raise SystemExit("studio bench ui: the embedded workers did not start")
             counter = _FrameCounter()
             with sync_playwright() as p:
-                browser = p.chromium.launch(executable_path=args.chromium, args=CHROMIUM_ARGS + WEBGL_ARGS[args.webgl])
+                browser = p.chromium.launch(
+                    executable_path=args.chromium, args=CHROMIUM_ARGS + WEBGL_ARGS[args.webgl]
+                )
                 page = browser.new_page(viewport={"width": 1100, "height": 720})
                 page.on("websocket", lambda ws: ws.on("framereceived", counter))
                 page.add_init_script(COUNT_FRAMES_JS)
@@ -200,7 +210,11 @@ def measure(args: argparse.Namespace) -> dict:
                     teleop.narrow_choices()
                     teleop.robot.value = args.robot
                     teleop.open()
-                    _until(lambda: teleop.info is not None and teleop.info.scene == args.scene, 180, "the session")
+                    _until(
+                        lambda: teleop.info is not None and teleop.info.scene == args.scene,
+                        180,
+                        "the session",
+                    )
                 faces = tab.view.faces_shown
                 pose = teleop.client.latest_pose() if teleop.client is not None else None
                 if pose is None:

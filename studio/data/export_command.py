@@ -17,7 +17,9 @@ from studio.data.store import EpisodeStore
 FORMATS = ("lerobot",)
 
 
-def add_format_arguments(parser: argparse.ArgumentParser, add_own: Callable[[argparse.ArgumentParser], None]) -> None:
+def add_format_arguments(
+    parser: argparse.ArgumentParser, add_own: Callable[[argparse.ArgumentParser], None]
+) -> None:
     """``FORMAT``, the format's own options (``add_own``), then ``--data-dir``."""
     parser.add_argument("format", choices=FORMATS, help="dataset format")
     add_own(parser)

@@ -47,10 +47,14 @@ class SplitSpec:
         for group, tasks in self.test_groups.items():
             stray = set(tasks) - set(self.test)
             if stray:
-                raise ValueError(f"split {self.scene!r}: test group {group!r} names non-test tasks {sorted(stray)}")
+                raise ValueError(
+                    f"split {self.scene!r}: test group {group!r} names non-test tasks {sorted(stray)}"
+                )
         unknown = set(self.replan_groups) - set(self.test_groups)
         if unknown:
-            raise ValueError(f"split {self.scene!r}: replan_groups names groups it does not define: {sorted(unknown)}")
+            raise ValueError(
+                f"split {self.scene!r}: replan_groups names groups it does not define: {sorted(unknown)}"
+            )
 
     def replanned_tasks(self) -> tuple[str, ...]:
         """The test tasks of ``replan_groups``, in test order."""
@@ -153,9 +157,12 @@ def resolve_tasks(scene: str, names: str | Sequence[str]) -> list[str]:
         elif name in known:
             out.append(name)
         elif "/" in name and scene_of_task(name) != scene and name in list_tasks(scene_of_task(name)):
-            raise ValueError(f"task {name!r} belongs to scene {scene_of_task(name)!r}, not {scene!r}: "
-                             "one scene at a time")
+            raise ValueError(
+                f"task {name!r} belongs to scene {scene_of_task(name)!r}, not {scene!r}: one scene at a time"
+            )
         else:
-            raise ValueError(f"unknown task {name!r} for scene {scene!r}; known: {', '.join(known)} "
-                             f"(or {', '.join(SPLIT_WORDS)})")
+            raise ValueError(
+                f"unknown task {name!r} for scene {scene!r}; known: {', '.join(known)} "
+                f"(or {', '.join(SPLIT_WORDS)})"
+            )
     return list(dict.fromkeys(out))

@@ -106,12 +106,16 @@ def _close_worker() -> None:
 def _expert_choices(store, task: str) -> list[str]:
     ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=("sawyer", "human"))]
     if not ids:
-        raise RuntimeError(f"no expert demonstration of {task!r} in the store; "
-                           f"collect some with: studio collect --robot sawyer --tasks {task}")
+        raise RuntimeError(
+            f"no expert demonstration of {task!r} in the store; "
+            f"collect some with: studio collect --robot sawyer --tasks {task}"
+        )
     return sorted(ids)
 
 
-def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None, keep: bool) -> RolloutSummary:
+def _run_job(
+    job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None, keep: bool
+) -> RolloutSummary:
     from studio.eval.latents import attach_latent_images
     from studio.eval.rollout import run_rollout, store_rollout
 
@@ -124,8 +128,15 @@ def _run_job(job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None,
     out = run_rollout(env, planner, expert_frames, job.task, job.env_seed, replans=replan)
     if keep and _W["checkpoint"] != "oracle":
         attach_latent_images(_W["checkpoint"], out.plans)
-    record = store_rollout(store, out, expert_episode_id=expert_id, checkpoint_id=checkpoint_id, eval_id=eval_id,
-                           keep=keep, extra={"index": job.index})
+    record = store_rollout(
+        store,
+        out,
+        expert_episode_id=expert_id,
+        checkpoint_id=checkpoint_id,
+        eval_id=eval_id,
+        keep=keep,
+        extra={"index": job.index},
+    )
     rollout_id = record.id
     return RolloutSummary(rollout_id, job.task, job.index, job.env_seed, expert_id, out.success,
                           out.stages["reached"], out.stages["grasped"], out.stages["placed"], out.failure_stage,
@@ -150,8 +161,10 @@ def summarise(rows: list[RolloutSummary]) -> dict:
             "placed": float(np.mean([r.placed for r in rs])),
             "mean_replans": float(np.mean([r.replans for r in rs])),
             "mean_planning_ms": 1000 * float(np.mean([r.planning_time_s for r in rs])),
-            "failure_stages": {s: sum(1 for r in rs if r.failure_stage == s)
-                               for s in sorted({r.failure_stage for r in rs if r.failure_stage})},
+            "failure_stages": {
+                s: sum(1 for r in rs if r.failure_stage == s)
+                for s in sorted({r.failure_stage for r in rs if r.failure_stage})
+            },
         }
     return {
         "tasks": by_task,
@@ -187,8 +200,14 @@ def with_budget(report: dict, replan: int, tasks: Collection[str] | None = None)
     derived = summarise(rows)
     keep = {k: v for k, v in report.items() if k not in derived}
     only = {} if tasks is None else {"replan_cut_tasks": sorted(tasks)}
-    return {**keep, **derived, "replan": replan, "derived_from_replan": report["replan"], **only,
-            "rows": [asdict(r) for r in rows]}
+    return {
+        **keep,
+        **derived,
+        "replan": replan,
+        "derived_from_replan": report["replan"],
+        **only,
+        "rows": [asdict(r) for r in rows],
+    }
 
 
 def default_robot(scene: str) -> str:
@@ -221,8 +240,18 @@ def register_checkpoint(data_dir, checkpoint: str | os.PathLike) -> str:
     return checkpoint_id
 
 
-def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan: int = 0, workers: int = 1,
-             data_dir=None, robot: str | None = None, keep: bool = True, progress: bool = True) -> dict:
+def evaluate(
+    checkpoint: str,
+    tasks: list[str],
+    episodes: int,
+    seed: int,
+    replan: int = 0,
+    workers: int = 1,
+    data_dir=None,
+    robot: str | None = None,
+    keep: bool = True,
+    progress: bool = True,
+) -> dict:
     """Run the evaluation and return the report (also written into the catalog as rollouts)."""
     from studio.data.paths import resolve_data_dir
     from studio.sim.tasks import get_task
@@ -257,8 +286,12 @@ def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan
     else:
         # Small chunks keep the progress bar moving while each worker keeps its env and model loaded.
         small = [jobs[i : i + 4] for i in range(0, len(jobs), 4)]
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init_worker,
-                                 initargs=(checkpoint, root, scene, robot, threads)) as pool:
+        with ProcessPoolExecutor(
+            workers,
+            mp_context=get_context("spawn"),
+            initializer=_init_worker,
+            initargs=(checkpoint, root, scene, robot, threads),
+        ) as pool:
             futures = [pool.submit(_run_chunk, c, replan, eval_id, checkpoint_id, keep) for c in small]
             for f in as_completed(futures):
                 got = f.result()
@@ -269,24 +302,47 @@ def evaluate(checkpoint: str, tasks: list[str], episodes: int, seed: int, replan
         bar.close()
     rows.sort(key=lambda r: (r.task, r.index))
     report = summarise(rows)
-    report.update({"eval_id": eval_id, "checkpoint": checkpoint, "robot": robot, "scene": scene, "seed": seed,
-                   "replan": replan, "episodes_per_task": episodes, "wall_s": time.perf_counter() - started,
-                   "workers": workers, "rows": [asdict(r) for r in rows]})
+    report.update(
+        {
+            "eval_id": eval_id,
+            "checkpoint": checkpoint,
+            "robot": robot,
+            "scene": scene,
+            "seed": seed,
+            "replan": replan,
+            "episodes_per_task": episodes,
+            "wall_s": time.perf_counter() - started,
+            "workers": workers,
+            "rows": [asdict(r) for r in rows],
+        }
+    )
     return report
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--checkpoint", required=True, help="checkpoint file, or 'oracle' for the execution ceiling")
-    parser.add_argument("--tasks", default="held-out",
-                        help="held-out (= test) | train | all | comma-separated task names of one scene")
-    parser.add_argument("--scene", default="pick_place",
-                        help="scene whose split 'held-out' refers to (task names give their own scene)")
+    parser.add_argument(
+        "--checkpoint", required=True, help="checkpoint file, or 'oracle' for the execution ceiling"
+    )
+    parser.add_argument(
+        "--tasks",
+        default="held-out",
+        help="held-out (= test) | train | all | comma-separated task names of one scene",
+    )
+    parser.add_argument(
+        "--scene",
+        default="pick_place",
+        help="scene whose split 'held-out' refers to (task names give their own scene)",
+    )
     parser.add_argument("--episodes", type=int, default=10, help="rollouts per task")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--replan", type=int, default=0, help="re-plans allowed inside an episode on failure")
     parser.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
-    parser.add_argument("--robot", default=None, help="the agent robot (default: panda; sawyer for metaworld)")
-    parser.add_argument("--no-store", action="store_true", help="do not store the rollouts (catalog rows only)")
+    parser.add_argument(
+        "--robot", default=None, help="the agent robot (default: panda; sawyer for metaworld)"
+    )
+    parser.add_argument(
+        "--no-store", action="store_true", help="do not store the rollouts (catalog rows only)"
+    )
     parser.add_argument("--json", action="store_true", help="print the full report as JSON")
     add_data_dir_argument(parser)
 
@@ -301,16 +357,31 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         print(f"studio eval: {err}", file=sys.stderr)
         return 2
-    report = evaluate(args.checkpoint, tasks, args.episodes, args.seed, args.replan, args.workers, args.data_dir,
-                      args.robot, keep=not args.no_store)
+    report = evaluate(
+        args.checkpoint,
+        tasks,
+        args.episodes,
+        args.seed,
+        args.replan,
+        args.workers,
+        args.data_dir,
+        args.robot,
+        keep=not args.no_store,
+    )
     if args.json:
         print(json.dumps(report, default=float))
         return 0
-    print(f"eval {report['eval_id']}  checkpoint={args.checkpoint}  replan={args.replan}  "
-          f"{report['rollouts']} rollouts in {report['wall_s']:.0f} s")
-    print(f"{'task':32s} {'n':>4s} {'success':>8s} {'reached':>8s} {'grasped':>8s} {'placed':>8s} {'plan ms':>8s}")
+    print(
+        f"eval {report['eval_id']}  checkpoint={args.checkpoint}  replan={args.replan}  "
+        f"{report['rollouts']} rollouts in {report['wall_s']:.0f} s"
+    )
+    print(
+        f"{'task':32s} {'n':>4s} {'success':>8s} {'reached':>8s} {'grasped':>8s} {'placed':>8s} {'plan ms':>8s}"
+    )
     for task, t in report["tasks"].items():
-        print(f"{task:32s} {t['rollouts']:4d} {t['success']:8.1%} {t['reached']:8.1%} {t['grasped']:8.1%} "
-              f"{t['placed']:8.1%} {t['mean_planning_ms']:8.1f}")
+        print(
+            f"{task:32s} {t['rollouts']:4d} {t['success']:8.1%} {t['reached']:8.1%} {t['grasped']:8.1%} "
+            f"{t['placed']:8.1%} {t['mean_planning_ms']:8.1f}"
+        )
     print(f"{'all':32s} {report['rollouts']:4d} {report['success']:8.1%}")
     return 0

@@ -15,7 +15,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-if TYPE_CHECKING:  # the rollout module loads the simulator; this one stays light (the UI's plan job imports it)
+if (
+    TYPE_CHECKING
+):  # the rollout module loads the simulator; this one stays light (the UI's plan job imports it)
     from studio.eval.rollout import PlanRecord
 
 _DECODERS: dict[str, Any] = {}

@@ -30,7 +30,9 @@ class OraclePlanner:
 
     def __init__(self, env: SimEnv):
         if env.scene not in ("pick_place", "push", "metaworld"):
-            raise ValueError(f"the oracle planner knows the tabletop and Meta-World scenes, not {env.scene!r}")
+            raise ValueError(
+                f"the oracle planner knows the tabletop and Meta-World scenes, not {env.scene!r}"
+            )
         self.env = env
         self._scratch: MetaWorldEnv | None = None
 
@@ -51,8 +53,9 @@ class OraclePlanner:
         wps = self._waypoints()
         cam = self.env.camera_model()
         waypoints_cam = np.column_stack([cam.world_to_cam(wps[:, :3]), wps[:, 3]])
-        return SimpleNamespace(waypoints_world=wps, waypoints_cam=waypoints_cam, latent_states=None,
-                               pooled_states=None)
+        return SimpleNamespace(
+            waypoints_world=wps, waypoints_cam=waypoints_cam, latent_states=None, pooled_states=None
+        )
 
     def close(self) -> None:
         if self._scratch is not None:

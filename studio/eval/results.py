@@ -46,7 +46,9 @@ def _group_mean(report: dict, tasks) -> str:
     return f"{sum(rates) / len(rates):.1%}" if rates else "–"
 
 
-def render_markdown(reports: list[tuple[str, int | str, dict]], groups: dict[str, tuple[str, ...]] | None = None) -> str:
+def render_markdown(
+    reports: list[tuple[str, int | str, dict]], groups: dict[str, tuple[str, ...]] | None = None
+) -> str:
     """Rows of (policy name, replans, evaluation report) → a Markdown table (one row per policy × replans).
 
     ``groups`` (a split's ``test_groups``, e.g. Meta-World's easy/hard) adds a column per group after the tasks.
@@ -65,7 +67,9 @@ def render_markdown(reports: list[tuple[str, int | str, dict]], groups: dict[str
     return "\n".join(lines) + "\n"
 
 
-def budget_rows(name: str, report: dict, replans: list[int], split: SplitSpec) -> list[tuple[str, int | str, dict]]:
+def budget_rows(
+    name: str, report: dict, replans: list[int], split: SplitSpec
+) -> list[tuple[str, int | str, dict]]:
     """A policy's table rows from its one evaluation at the largest budget: one per budget in ``replans``, then,
     if the split names ``replan_groups``, the paper's protocol — the largest budget on those groups' tasks, one
     attempt on the other test tasks (Meta-World: re-plans on the hard tasks only)."""
@@ -83,7 +87,9 @@ def budget_rows(name: str, report: dict, replans: list[int], split: SplitSpec) -
 def json_rows(reports: list[tuple[str, int | str, dict]]) -> list[dict]:
     """The table's rows as the JSON beside it: each report without its per-rollout rows, named by policy and by
     the row's re-plan label (the paper-protocol row's report says 0 re-plans for its cut tasks; the label wins)."""
-    return [{"policy": n, **{key: v for key, v in r.items() if key != "rows"}, "replan": k} for n, k, r in reports]
+    return [
+        {"policy": n, **{key: v for key, v in r.items() if key != "rows"}, "replan": k} for n, k, r in reports
+    ]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -91,8 +97,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a checkpoint to evaluate, named for the table (repeatable; 'oracle' allowed)")  # fmt: skip
     parser.add_argument("--scene", default="pick_place")
     parser.add_argument("--episodes", type=int, default=100, help="rollouts per held-out task")
-    parser.add_argument("--replan", type=int, nargs="+", default=[0, 2], help="re-plan budgets to report (a split with replan_groups, e.g. Meta-World, also gets the paper's "
-                             "row: the largest budget on those groups only)")
+    parser.add_argument(
+        "--replan",
+        type=int,
+        nargs="+",
+        default=[0, 2],
+        help="re-plan budgets to report (a split with replan_groups, e.g. Meta-World, also gets the paper's "
+        "row: the largest budget on those groups only)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=None, help="Markdown file to write (default: print only)")

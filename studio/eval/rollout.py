@@ -33,7 +33,9 @@ FAILURE_NAMES = {"reached": "reach", "grasped": "grasp", "placed": "place"}
 
 
 class PlannerLike(Protocol):
-    def plan(self, expert_frames: np.ndarray, agent_frame: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray): ...
+    def plan(
+        self, expert_frames: np.ndarray, agent_frame: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray
+    ): ...
 
 
 @dataclass
@@ -86,12 +88,21 @@ def failure_stage(stages: dict[str, bool]) -> str | None:
     return "place"
 
 
-def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, task: str, seed: int, *,
-                replans: int = 0, grasp_correction: bool | None = None, n_frames: int = 30,
-                on_event: Callable[[str, dict], None] | None = None,
-                on_tick: Callable[[], None] | None = None,
-                should_stop: Callable[[], bool] | None = None,
-                controller_config: ControllerConfig | None = None) -> RolloutOutcome:
+def run_rollout(
+    env: SimEnv,
+    planner: PlannerLike,
+    expert_frames: np.ndarray,
+    task: str,
+    seed: int,
+    *,
+    replans: int = 0,
+    grasp_correction: bool | None = None,
+    n_frames: int = 30,
+    on_event: Callable[[str, dict], None] | None = None,
+    on_tick: Callable[[], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+    controller_config: ControllerConfig | None = None,
+) -> RolloutOutcome:
     """Run one rollout of ``task`` from ``seed`` on ``env`` imitating ``expert_frames`` (N, H, W, 3) uint8.
 
     ``on_tick`` is called after every control tick (live display); ``should_stop`` is polled every tick
@@ -134,10 +145,16 @@ def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, ta
         result = planner.plan(expert_frames, frame, cam.K, cam.T_world_cam)
         dt = time.perf_counter() - t0
         wps = np.asarray(result.waypoints_world, dtype=np.float64)
-        plans.append(PlanRecord(
-            waypoints_world=wps, waypoints_cam=getattr(result, "waypoints_cam", None), planning_time_s=dt,
-            start_tick=env.steps, latent_states=getattr(result, "latent_states", None),
-            pooled_states=getattr(result, "pooled_states", None)))
+        plans.append(
+            PlanRecord(
+                waypoints_world=wps,
+                waypoints_cam=getattr(result, "waypoints_cam", None),
+                planning_time_s=dt,
+                start_tick=env.steps,
+                latent_states=getattr(result, "latent_states", None),
+                pooled_states=getattr(result, "pooled_states", None),
+            )
+        )
         event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
         controller.execute(wps)
         attempt_stages.append({k: bool(v) for k, v in env.stages().items()})
@@ -147,13 +164,31 @@ def run_rollout(env: SimEnv, planner: PlannerLike, expert_frames: np.ndarray, ta
     outcome_stage = "cancelled" if controller.cancelled and not stages["placed"] else failure_stage(stages)
     event("outcome", {"success": stages["placed"], "failure_stage": outcome_stage})
     recording = recorder.finish(n_frames=n_frames, success=stages["placed"])
-    return RolloutOutcome(task=task, seed=int(seed), robot=env.robot, success=stages["placed"], stages=stages,
-                          failure_stage=outcome_stage, plans=plans, recording=recording,
-                          duration_s=time.perf_counter() - started, events=events, attempt_stages=attempt_stages)
+    return RolloutOutcome(
+        task=task,
+        seed=int(seed),
+        robot=env.robot,
+        success=stages["placed"],
+        stages=stages,
+        failure_stage=outcome_stage,
+        plans=plans,
+        recording=recording,
+        duration_s=time.perf_counter() - started,
+        events=events,
+        attempt_stages=attempt_stages,
+    )
 
 
-def store_rollout(store, out: RolloutOutcome, *, expert_episode_id: str | None, checkpoint_id: str | None,
-                  eval_id: str | None = None, keep: bool = True, extra: dict | None = None):
+def store_rollout(
+    store,
+    out: RolloutOutcome,
+    *,
+    expert_episode_id: str | None,
+    checkpoint_id: str | None,
+    eval_id: str | None = None,
+    keep: bool = True,
+    extra: dict | None = None,
+):
     """Write a rollout's plans and events into ``<root>/rollouts/<id>/`` (atomically) and index it.
 
     The recording becomes an agent episode (source ``rollout``) in the same catalog transaction as the
@@ -189,10 +224,20 @@ def store_rollout(store, out: RolloutOutcome, *, expert_episode_id: str | None, 
         os.replace(tmp, folder)
         path = str(folder)
     record = RolloutRecord(
-        id=rollout_id, task=out.task, success=out.success, checkpoint_id=checkpoint_id,
-        expert_episode_id=expert_episode_id, robot=out.robot, seed=out.seed, failure_stage=out.failure_stage,
-        replans=out.replans, planning_time_s=out.planning_time_s, duration_s=out.duration_s,
-        num_steps=out.recording.num_steps, path=path, eval_id=eval_id,
+        id=rollout_id,
+        task=out.task,
+        success=out.success,
+        checkpoint_id=checkpoint_id,
+        expert_episode_id=expert_episode_id,
+        robot=out.robot,
+        seed=out.seed,
+        failure_stage=out.failure_stage,
+        replans=out.replans,
+        planning_time_s=out.planning_time_s,
+        duration_s=out.duration_s,
+        num_steps=out.recording.num_steps,
+        path=path,
+        eval_id=eval_id,
         extra={"stages": out.stages, **(extra or {})},
     )
     return store.add_rollout(record, out.recording if keep else None)

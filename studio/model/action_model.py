@@ -42,12 +42,20 @@ class ActionModel(nn.Module):
         if len(state_shape) not in (1, 3):
             raise ValueError(f"ActionModel state_shape must be (C, H, W) or (D,), got {state_shape}")
         if attention not in ("joint", "divided", "cross"):
-            raise ValueError(f"ActionModel attention must be 'joint', 'divided' or 'cross', got {attention!r}")
+            raise ValueError(
+                f"ActionModel attention must be 'joint', 'divided' or 'cross', got {attention!r}"
+            )
         self.state_shape = tuple(state_shape)
         dim = state_shape[0]
         self.transformer = CausalTransformer(
-            dim, blocks, heads, attn_dim, mlp_dim, dropout,
-            divided=attention in ("divided", "cross"), cross=attention == "cross",
+            dim,
+            blocks,
+            heads,
+            attn_dim,
+            mlp_dim,
+            dropout,
+            divided=attention in ("divided", "cross"),
+            cross=attention == "cross",
         )
         if len(state_shape) == 3:
             _, h, w = state_shape

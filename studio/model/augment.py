@@ -209,7 +209,9 @@ def augment_batch(
     hflip = torch.rand(u, generator=g) < cfg.hflip
     vflip = torch.rand(u, generator=g) < cfg.vflip
     ids = expert_ids.cpu()
-    expert_only = torch.rand(u, generator=g) < cfg.expert_hflip if cfg.expert_hflip > 0 else torch.zeros_like(hflip)
+    expert_only = (
+        torch.rand(u, generator=g) < cfg.expert_hflip if cfg.expert_hflip > 0 else torch.zeros_like(hflip)
+    )
     A_exp = sample_affine(u, (h, w), cfg, g, hflip ^ expert_only, vflip)
     A_agt = sample_affine(b, (h, w), cfg, g, hflip[ids], vflip[ids])
     expert = color_jitter(warp(expert_frames.float() / 255.0, A_exp), cfg, g)

@@ -38,6 +38,7 @@ Ablations (paper section 4, "ablations"), all switches of ``ModelConfig``/``Trai
 The measurements behind these choices — encoder timings, probes, the held-out success of each preset and
 ablation — are in ``docs/experiments.md``.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -257,7 +258,9 @@ class TrainConfig:
         self.freeze = tuple(str(p).strip() for p in parts if str(p).strip())
         unknown = sorted(set(self.freeze) - set(FREEZABLE))
         if unknown:
-            raise ValueError(f"train.freeze: unknown part(s) {', '.join(unknown)}; choose from {', '.join(FREEZABLE)}")
+            raise ValueError(
+                f"train.freeze: unknown part(s) {', '.join(unknown)}; choose from {', '.join(FREEZABLE)}"
+            )
         if self.batch_size < 1 or self.pairs_per_expert < 1:
             raise ValueError(
                 f"batch_size and pairs_per_expert must be >= 1, got {self.batch_size}, {self.pairs_per_expert}"
@@ -345,7 +348,9 @@ SCENE_TRAIN_SETTINGS: dict[str, dict[str, Any]] = {
     "push": {"expert_hflip": 0.5, "pair_hue": 0.5},
 }
 #: The scenes whose ``cpu`` preset has the demonstration-task loss (read from :data:`SCENE_TRAIN_SETTINGS`).
-DEMO_TASK_LOSS_SCENES = tuple(s for s, settings in SCENE_TRAIN_SETTINGS.items() if settings.get("demo_task_weight"))
+DEMO_TASK_LOSS_SCENES = tuple(
+    s for s, settings in SCENE_TRAIN_SETTINGS.items() if settings.get("demo_task_weight")
+)
 
 
 def preset(name: str, scene: str | None = None) -> RunConfig:
@@ -380,10 +385,26 @@ def preset(name: str, scene: str | None = None) -> RunConfig:
             head_hidden=256,
             head_dropout=0.1,
         )
-        train = TrainConfig(batch_size=16, epochs=10.0, val_every=250, checkpoint_every=100, lr_max=1e-3,
-                            lr_warmup=0.05, hflip=0.0, mixup=False, alpha_warmup=0.1, aug_warmup=0.1,
-                            crop=0.0, translate=0.0, scale=(1.0, 1.0), brightness=0.0, contrast=0.0,
-                            saturation=0.0, hue=0.0, **SCENE_TRAIN_SETTINGS.get(scene or "pick_place", {}))
+        train = TrainConfig(
+            batch_size=16,
+            epochs=10.0,
+            val_every=250,
+            checkpoint_every=100,
+            lr_max=1e-3,
+            lr_warmup=0.05,
+            hflip=0.0,
+            mixup=False,
+            alpha_warmup=0.1,
+            aug_warmup=0.1,
+            crop=0.0,
+            translate=0.0,
+            scale=(1.0, 1.0),
+            brightness=0.0,
+            contrast=0.0,
+            saturation=0.0,
+            hue=0.0,
+            **SCENE_TRAIN_SETTINGS.get(scene or "pick_place", {}),
+        )
         return RunConfig(model, train)
     raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
 

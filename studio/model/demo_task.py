@@ -43,7 +43,9 @@ def label_table(tasks: Sequence[str], labels: str) -> tuple[tuple[int, ...], tup
     if labels == "task":
         return (len(tasks),), ()
     if labels != "parts":
-        raise ValueError(f"unknown demonstration-task labelling {labels!r}; choose from {', '.join(LABELLINGS)}")
+        raise ValueError(
+            f"unknown demonstration-task labelling {labels!r}; choose from {', '.join(LABELLINGS)}"
+        )
     found = [_task(name) for name in tasks]
     objects, targets = _parts(found)
     return (len(objects), len(targets)), tuple((objects.index(t.obj), targets.index(t.target)) for t in found)
@@ -86,7 +88,9 @@ def _parts(found: Sequence[TaskParts]) -> tuple[list[str], list[str]]:
     targets = list(dict.fromkeys(t.target for t in found))
     for kind, names in (("object", objects), ("target", targets)):
         if len(names) < 2:
-            raise ValueError(f"demonstration-task labels 'parts': the training tasks have one {kind} only ({names[0]})")
+            raise ValueError(
+                f"demonstration-task labels 'parts': the training tasks have one {kind} only ({names[0]})"
+            )
     return objects, targets
 
 
@@ -103,9 +107,13 @@ def demo_task_loss(
     if not groups:
         groups = (logits.shape[-1],)
     if sum(groups) != logits.shape[-1]:
-        raise ValueError(f"the head gives {logits.shape[-1]} logits, the groups {tuple(groups)} need {sum(groups)}")
+        raise ValueError(
+            f"the head gives {logits.shape[-1]} logits, the groups {tuple(groups)} need {sum(groups)}"
+        )
     if table:
-        labels = torch.as_tensor(table, dtype=torch.long, device=logits.device)[expert_tasks.to(logits.device)]
+        labels = torch.as_tensor(table, dtype=torch.long, device=logits.device)[
+            expert_tasks.to(logits.device)
+        ]
     else:
         labels = expert_tasks.to(logits.device).long()[:, None]
     losses, right = [], torch.ones(logits.shape[0], dtype=torch.bool, device=logits.device)

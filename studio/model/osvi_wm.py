@@ -92,8 +92,14 @@ class OSVIWM(nn.Module):
         )
         self.world_model = (
             WorldModel(
-                self.state_shape, cfg.wm_width, cfg.wm_blocks, cfg.wm_heads, cfg.wm_mlp_dim, cfg.wm_dropout,
-                residual=cfg.wm_residual, tokens=cfg.wm_tokens,
+                self.state_shape,
+                cfg.wm_width,
+                cfg.wm_blocks,
+                cfg.wm_heads,
+                cfg.wm_mlp_dim,
+                cfg.wm_dropout,
+                residual=cfg.wm_residual,
+                tokens=cfg.wm_tokens,
             )
             if cfg.world_model
             else None
@@ -110,7 +116,9 @@ class OSVIWM(nn.Module):
         # Optional (not in the paper): names the demonstrated task from π's outputs at the expert frames,
         # averaged over frames and cells; trained by TrainConfig.demo_task_weight.
         self.demo_task_head = (
-            nn.Sequential(nn.LayerNorm(self.state_shape[0]), nn.Linear(self.state_shape[0], cfg.demo_task_classes))
+            nn.Sequential(
+                nn.LayerNorm(self.state_shape[0]), nn.Linear(self.state_shape[0], cfg.demo_task_classes)
+            )
             if cfg.demo_task_classes > 0
             else None
         )

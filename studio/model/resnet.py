@@ -92,7 +92,9 @@ def trunk_key(torchvision_key: str) -> str | None:
 def imagenet_state_dict(stages: int = 4) -> dict[str, torch.Tensor]:
     """torchvision's ImageNet weights for the first ``stages`` stages, keyed for the trunk. Downloads (~45 MB,
     cached by ``torch.hub``) — call it only when the user asked for pretrained weights."""
-    source = torch.hub.load_state_dict_from_url(IMAGENET_URL, map_location="cpu", check_hash=True, progress=False)
+    source = torch.hub.load_state_dict_from_url(
+        IMAGENET_URL, map_location="cpu", check_hash=True, progress=False
+    )
     return remap_torchvision(source, stages)
 
 

@@ -32,15 +32,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scene", default="pick_place", help="scene (or split JSON path) that selects the tasks"
     )
     parser.add_argument(
-        "--set", nargs="*", action="extend", default=[], metavar="SECTION.FIELD=VALUE", help="config overrides"
+        "--set",
+        nargs="*",
+        action="extend",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="config overrides",
     )
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--restart", action="store_true", help="ignore an existing checkpoint in --out")
     parser.add_argument(
-        "--init", default=None, metavar="CKPT",
+        "--init",
+        default=None,
+        metavar="CKPT",
         help="start from this checkpoint's or policy file's weights (same model configuration, or the same "
-             "without the world model, which then starts untrained; fresh optimiser)",
+        "without the world model, which then starts untrained; fresh optimiser)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 

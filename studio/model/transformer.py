@@ -50,7 +50,9 @@ class KVCache:
 
     layers: list[tuple[torch.Tensor, torch.Tensor]]
     frames: int
-    context: list[tuple[torch.Tensor, torch.Tensor]] | None = None  # cross keys/values of the context, per block
+    context: list[tuple[torch.Tensor, torch.Tensor]] | None = (
+        None  # cross keys/values of the context, per block
+    )
 
     def index_select(self, index: torch.Tensor) -> KVCache:
         """The cache of a batch re-indexed along the batch axis (e.g. unique experts → pairs)."""
@@ -164,14 +166,25 @@ class CausalBlock(nn.Module):
             k, v = kv.reshape(b, first * s, 2, h, hd).permute(2, 0, 3, 1, 4)  # (B, heads, frames·S, hd)
             context = (k, v)
         if t > first:
-            q = self.q_cross(xn[:, first:].reshape(b, (t - first) * s, -1)).reshape(b, -1, h, hd).transpose(1, 2)
+            q = (
+                self.q_cross(xn[:, first:].reshape(b, (t - first) * s, -1))
+                .reshape(b, -1, h, hd)
+                .transpose(1, 2)
+            )
             out = F.scaled_dot_product_attention(q, context[0], context[1], dropout_p=p_drop)
             out = out.transpose(1, 2).reshape(b, t - first, s, self.attn_dim)
             x = torch.cat([x[:, :first], x[:, first:] + self.drop(self.proj_cross(out))], dim=1)
         return x, context
 
     def _time_attention(
-        self, q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, t: int, s: int, past_frames: int, p_drop: float
+        self,
+        q: torch.Tensor,
+        k: torch.Tensor,
+        v: torch.Tensor,
+        t: int,
+        s: int,
+        past_frames: int,
+        p_drop: float,
     ) -> torch.Tensor:
         """Each cell attends to itself in frames ≤ its own: (B, heads, frames·S, hd) → (B, t, S, attn_dim)."""
         b, h, _, hd = q.shape
@@ -183,14 +196,18 @@ class CausalBlock(nn.Module):
         if t > 1:
             q_frame = torch.arange(past_frames, frames, device=q.device)
             mask = torch.arange(frames, device=q.device)[None, :] <= q_frame[:, None]
-        out = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=p_drop)  # (B, S, heads, t, hd)
+        out = F.scaled_dot_product_attention(
+            q, k, v, attn_mask=mask, dropout_p=p_drop
+        )  # (B, S, heads, t, hd)
         return out.permute(0, 3, 1, 2, 4).reshape(b, t, s, self.attn_dim)
 
     def _space_attention(self, x: torch.Tensor, p_drop: float) -> torch.Tensor:
         """Each cell attends to every cell of its own frame: (B, t, S, D) → (B, t, S, attn_dim)."""
         b, t, s, _ = x.shape
         h, hd = self.heads, self.attn_dim // self.heads
-        q, k, v = self.qkv_space(x).reshape(b, t, s, 3, h, hd).permute(3, 0, 1, 4, 2, 5)  # (B, t, heads, S, hd)
+        q, k, v = (
+            self.qkv_space(x).reshape(b, t, s, 3, h, hd).permute(3, 0, 1, 4, 2, 5)
+        )  # (B, t, heads, S, hd)
         out = F.scaled_dot_product_attention(q, k, v, dropout_p=p_drop)
         return out.transpose(2, 3).reshape(b, t, s, self.attn_dim)
 
@@ -230,7 +247,9 @@ class CausalTransformer(nn.Module):
         if cache is not None and context_frames:
             raise ValueError("context_frames is given by the cache once there is one")
         if context_frames > x.shape[1]:
-            raise ValueError(f"the {context_frames} context frames must come in one call, got {x.shape[1]} frames")
+            raise ValueError(
+                f"the {context_frames} context frames must come in one call, got {x.shape[1]} frames"
+            )
         past_frames = 0 if cache is None else cache.frames
         layers: list[tuple[torch.Tensor, torch.Tensor]] = []
         contexts: list[tuple[torch.Tensor, torch.Tensor]] = []

@@ -62,7 +62,11 @@ class CameraModel:
         """The exact camera model of a MuJoCo camera after ``mj_forward`` (fixed or moving)."""
         import mujoco
 
-        cam_id = camera if isinstance(camera, int) else mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+        cam_id = (
+            camera
+            if isinstance(camera, int)
+            else mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+        )
         if cam_id < 0:
             raise KeyError(f"no camera named {camera!r} in the model")
         R_world_mjcam = data.cam_xmat[cam_id].reshape(3, 3)

@@ -87,8 +87,15 @@ class SimEnv:
         depth_size: (height, width) of the wrist depth camera.
     """
 
-    def __init__(self, scene: str, robot: str, *, image_size: tuple[int, int] = (240, 320),
-                 control_dt: float = 0.02, depth_size: tuple[int, int] = (64, 64)):
+    def __init__(
+        self,
+        scene: str,
+        robot: str,
+        *,
+        image_size: tuple[int, int] = (240, 320),
+        control_dt: float = 0.02,
+        depth_size: tuple[int, int] = (64, 64),
+    ):
         self.scene_info = scenes.scene_info(scene)
         self.robot_info = robots.robot_info(robot)
         self.scene, self.robot = scene, robot

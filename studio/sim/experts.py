@@ -34,35 +34,47 @@ def expert_waypoints(env: SimEnv) -> np.ndarray:
         grasp_z = max(obj[2], min_z)
         tgt = layout.target_pos[task.target]
         place_z = grasp_z + 0.01
-        return np.array([
-            [obj[0], obj[1], grasp_z, 1.0],
-            [obj[0], obj[1], LIFT_Z, 1.0],
-            [tgt[0], tgt[1], LIFT_Z, 1.0],
-            [tgt[0], tgt[1], place_z, 0.0],
-            [tgt[0], tgt[1], LIFT_Z, 0.0],
-        ])
+        return np.array(
+            [
+                [obj[0], obj[1], grasp_z, 1.0],
+                [obj[0], obj[1], LIFT_Z, 1.0],
+                [tgt[0], tgt[1], LIFT_Z, 1.0],
+                [tgt[0], tgt[1], place_z, 0.0],
+                [tgt[0], tgt[1], LIFT_Z, 0.0],
+            ]
+        )
     sign = 1.0 if task.target == "forward" else -1.0
     z = max(PUSH_Z, min_z)
     start = obj[1] - sign * PUSH_BEHIND
     end = obj[1] + sign * PUSH_THROUGH
-    return np.array([
-        [obj[0], start, z, 1.0],
-        [obj[0], (start + end) / 2, z, 1.0],
-        [obj[0], end, z, 1.0],
-        [obj[0], end - sign * 0.03, z + 0.02, 1.0],
-        [obj[0], end - sign * 0.03, LIFT_Z, 1.0],
-    ])
+    return np.array(
+        [
+            [obj[0], start, z, 1.0],
+            [obj[0], (start + end) / 2, z, 1.0],
+            [obj[0], end, z, 1.0],
+            [obj[0], end - sign * 0.03, z + 0.02, 1.0],
+            [obj[0], end - sign * 0.03, LIFT_Z, 1.0],
+        ]
+    )
 
 
 def run_expert(env: SimEnv, recorder: Recorder | None = None) -> bool:
     """Run the scripted expert on the env's current episode; True if the task succeeded."""
-    controller = WaypointController(env, ControllerConfig(grasp_correction=False),
-                                    on_tick=recorder.tick if recorder else None)
+    controller = WaypointController(
+        env, ControllerConfig(grasp_correction=False), on_tick=recorder.tick if recorder else None
+    )
     return controller.execute(expert_waypoints(env)).success
 
 
-def record_expert(scene: str, robot: str, task: str, seed: int, image_size: tuple[int, int] = (240, 320),
-                  min_frames: int = 30, env: SimEnv | None = None) -> Recording:
+def record_expert(
+    scene: str,
+    robot: str,
+    task: str,
+    seed: int,
+    image_size: tuple[int, int] = (240, 320),
+    min_frames: int = 30,
+    env: SimEnv | None = None,
+) -> Recording:
     """One scripted episode, recorded: full-rate arrays and ``min_frames`` evenly spaced frames.
 
     Pass ``env`` to reuse an environment across episodes (it must match scene, robot and image size).

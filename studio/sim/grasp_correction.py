@@ -25,9 +25,16 @@ class Detection:
     pixels: int
 
 
-def segment_largest(depth: np.ndarray, camera: CameraModel, table_z: float = 0.0, min_height: float = 0.008,
-                    min_range: float = 0.11, min_pixels: int = 12, near: np.ndarray | None = None,
-                    radius: float = 0.06) -> Detection | None:
+def segment_largest(
+    depth: np.ndarray,
+    camera: CameraModel,
+    table_z: float = 0.0,
+    min_height: float = 0.008,
+    min_range: float = 0.11,
+    min_pixels: int = 12,
+    near: np.ndarray | None = None,
+    radius: float = 0.06,
+) -> Detection | None:
     """The largest connected blob standing above the table in a wrist depth image, or None.
 
     Args:

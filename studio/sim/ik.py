@@ -25,7 +25,6 @@ MAX_EE_SPEED = 0.6
 MAX_JOINT_SPEED = 2.0
 
 
-
 def _quat_from_matrix(R: np.ndarray) -> np.ndarray:
     q = np.zeros(4)
     mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=np.float64).ravel())
@@ -50,10 +49,15 @@ class PandaIK:
         self.model = build_robot_model("panda")
         self.configuration = mink.Configuration(self.model)
         self.sim_qadr = np.array([sim_model.jnt_qposadr[sim_model.joint(j).id] for j in self.info.arm_joints])
-        self.ik_qadr = np.array([self.model.jnt_qposadr[self.model.joint(j).id] for j in self.info.arm_joints])
+        self.ik_qadr = np.array(
+            [self.model.jnt_qposadr[self.model.joint(j).id] for j in self.info.arm_joints]
+        )
         self.act_ids = np.array([sim_model.actuator(f"panda0_joint{i}").id for i in range(1, 8)])
         self.frame_task = mink.FrameTask(
-            frame_name=self.info.grasp_site, frame_type="site", position_cost=1.0, orientation_cost=1.0,
+            frame_name=self.info.grasp_site,
+            frame_type="site",
+            position_cost=1.0,
+            orientation_cost=1.0,
             lm_damping=1e-3,
         )
         self.posture_task = mink.PostureTask(self.model, cost=1e-3)
@@ -73,8 +77,14 @@ class PandaIK:
         self.posture_task.set_target(q)
         self.frame_task.set_target(mink.SE3.from_rotation_and_translation(self.rotation, target))
         for _ in range(iterations):
-            v = mink.solve_ik(self.configuration, [self.frame_task, self.posture_task], 0.05, "daqp",
-                              damping=1e-3, limits=self.limits[:1])
+            v = mink.solve_ik(
+                self.configuration,
+                [self.frame_task, self.posture_task],
+                0.05,
+                "daqp",
+                damping=1e-3,
+                limits=self.limits[:1],
+            )
             self.configuration.integrate_inplace(v, 0.05)
         return self.configuration.q[self.ik_qadr].copy()
 
@@ -98,8 +108,14 @@ class PandaIK:
         goal = _rate_limit(ee, target, MAX_EE_SPEED * dt)
         self.frame_task.set_target(mink.SE3.from_rotation_and_translation(self.rotation, goal))
         try:
-            v = mink.solve_ik(self.configuration, [self.frame_task, self.posture_task], dt, "daqp",
-                              damping=1e-3, limits=self.limits)
+            v = mink.solve_ik(
+                self.configuration,
+                [self.frame_task, self.posture_task],
+                dt,
+                "daqp",
+                damping=1e-3,
+                limits=self.limits,
+            )
         except mink.exceptions.NoSolutionFound:
             v = np.zeros(self.model.nv)
         self.configuration.integrate_inplace(v, dt)

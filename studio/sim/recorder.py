@@ -58,8 +58,15 @@ class Recorder:
         mujoco.mj_forward(env.model, env.data)
         arrays = {k: np.stack([np.asarray(r[k], dtype=np.float64) for r in self.rows]) for k in self.rows[0]}
         return Recording(
-            scene=env.scene, robot=env.robot, task=env.task.name, seed=int(env.seed),
+            scene=env.scene,
+            robot=env.robot,
+            task=env.task.name,
+            seed=int(env.seed),
             success=bool(env.success() if success is None else success),
-            camera=env.camera_model("external"), frames=np.stack(frames), frame_steps=steps,
-            arrays=arrays, object_names=list(env.scene_info.objects), control_dt=env.control_dt,
+            camera=env.camera_model("external"),
+            frames=np.stack(frames),
+            frame_steps=steps,
+            arrays=arrays,
+            object_names=list(env.scene_info.objects),
+            control_dt=env.control_dt,
         )

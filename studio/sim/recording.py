@@ -64,7 +64,9 @@ class Recording:
             if len(self.arrays[key]) != n:
                 raise ValueError(f"Recording.arrays[{key!r}] has {len(self.arrays[key])} steps, time has {n}")
         if self.frames.ndim != 4 or self.frames.shape[-1] != 3 or self.frames.dtype != np.uint8:
-            raise ValueError(f"Recording.frames must be (F, H, W, 3) uint8, got {self.frames.shape} {self.frames.dtype}")
+            raise ValueError(
+                f"Recording.frames must be (F, H, W, 3) uint8, got {self.frames.shape} {self.frames.dtype}"
+            )
         if len(self.frame_steps) != len(self.frames):
             raise ValueError("Recording.frame_steps must have one entry per frame")
 

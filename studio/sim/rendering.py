@@ -53,7 +53,11 @@ def new_renderer(model: mujoco.MjModel, height: int, width: int, depth: bool = F
     r = mujoco.Renderer(model, height, width)
     if depth:
         r.enable_depth_rendering()
-    for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION, mujoco.mjtRndFlag.mjRND_SKYBOX):
+    for flag in (
+        mujoco.mjtRndFlag.mjRND_SHADOW,
+        mujoco.mjtRndFlag.mjRND_REFLECTION,
+        mujoco.mjtRndFlag.mjRND_SKYBOX,
+    ):
         r.scene.flags[flag] = False
     if not _state["exit_hook"]:
         atexit.register(_close_all)

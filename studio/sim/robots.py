@@ -89,8 +89,19 @@ SAWYER = RobotInfo(
     grasp_site="grasp_site",
     wrist_camera="wrist",
     body_prefix=(
-        "base", "controller_box", "pedestal", "torso", "right_", "head", "screen", "hand",
-        "rightclaw", "leftclaw", "rightpad", "leftpad", "robot_mount",
+        "base",
+        "controller_box",
+        "pedestal",
+        "torso",
+        "right_",
+        "head",
+        "screen",
+        "hand",
+        "rightclaw",
+        "leftclaw",
+        "rightpad",
+        "leftpad",
+        "robot_mount",
     ),
     max_opening=0.08,
 )
@@ -149,7 +160,9 @@ def finish_spec(spec, info: RobotInfo) -> None:
         link7 = spec.body("panda0_link7")
         # Between the fingertip pads, on the gripper axis; x/y axes as in TOP_DOWN's convention
         # (y = finger closing direction).
-        link7.add_site(name="grasp_site", pos=[0, 0, 0.226], quat=[0.92388, 0, 0, -0.382683], size=[0.006, 0, 0])
+        link7.add_site(
+            name="grasp_site", pos=[0, 0, 0.226], quat=[0.92388, 0, 0, -0.382683], size=[0.006, 0, 0]
+        )
         link7.add_camera(name="wrist", pos=[0.0, 0.0, 0.165], xyaxes=[1, 0, 0, 0, -1, 0], fovy=75)
         # The kitchen model's joint damping (100 on the shoulder, 10 on the forearm) makes the position
         # servos lag by ~0.1 s, which bends Cartesian paths by centimetres; keep damping/kp near 0.03 s.

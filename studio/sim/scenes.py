@@ -41,8 +41,9 @@ class SceneInfo:
 
 
 SCENES: dict[str, SceneInfo] = {
-    "pick_place": SceneInfo("pick_place", objects=("cube", "cylinder", "prism", "bar"),
-                            targets=("red", "green", "blue", "yellow")),
+    "pick_place": SceneInfo(
+        "pick_place", objects=("cube", "cylinder", "prism", "bar"), targets=("red", "green", "blue", "yellow")
+    ),
     "push": SceneInfo("push", objects=("red", "blue")),
 }
 

@@ -86,8 +86,14 @@ class Task:
         return layout
 
     # ------------------------------------------------------------------ judging
-    def stages(self, objects: dict[str, np.ndarray], initial: dict[str, np.ndarray], layout: Layout,
-               ee_pos: np.ndarray, grasped: str | None) -> dict[str, bool]:
+    def stages(
+        self,
+        objects: dict[str, np.ndarray],
+        initial: dict[str, np.ndarray],
+        layout: Layout,
+        ee_pos: np.ndarray,
+        grasped: str | None,
+    ) -> dict[str, bool]:
         """The breakdown for this state: ``reached``, ``grasped``, ``placed`` (= success)."""
         p = objects[self.obj]
         if self.scene == "pick_place":
@@ -142,4 +148,6 @@ def get_task(name: str) -> Task | MetaWorldTask:
     try:
         return TASKS[name]
     except KeyError:
-        raise ValueError(f"unknown task {name!r}; e.g. {list_tasks()[:3]} (see studio.sim.tasks.list_tasks)") from None
+        raise ValueError(
+            f"unknown task {name!r}; e.g. {list_tasks()[:3]} (see studio.sim.tasks.list_tasks)"
+        ) from None

@@ -97,9 +97,13 @@ class ExecutionResult:
 class WaypointController:
     """Drives ``env`` through attributed waypoints."""
 
-    def __init__(self, env: SimEnv, config: ControllerConfig | None = None,
-                 on_tick: Callable[[], None] | None = None,
-                 on_event: Callable[[str, dict], None] | None = None):
+    def __init__(
+        self,
+        env: SimEnv,
+        config: ControllerConfig | None = None,
+        on_tick: Callable[[], None] | None = None,
+        on_event: Callable[[str, dict], None] | None = None,
+    ):
         self.env = env
         self.config = config or ControllerConfig()
         self.on_tick = on_tick
@@ -115,8 +119,14 @@ class WaypointController:
         if self.on_tick is not None:
             self.on_tick()
 
-    def move_to(self, target: np.ndarray, gripper: float, max_ticks: int | None = None,
-                tolerance: float | None = None, speed: float | None = None) -> bool:
+    def move_to(
+        self,
+        target: np.ndarray,
+        gripper: float,
+        max_ticks: int | None = None,
+        tolerance: float | None = None,
+        speed: float | None = None,
+    ) -> bool:
         """Move until the grasp site is within tolerance of ``target``; True if reached.
 
         The commanded point travels along the straight line from the current pose at ``speed`` (m/s),
@@ -152,8 +162,9 @@ class WaypointController:
         point, top = above.copy(), None
         for i in range(self.config.correction_iterations):
             depth = self.env.render_depth("wrist")
-            det = segment_largest(depth, self.env.camera_model("wrist"), near=above,
-                                  radius=self.config.correction_radius)
+            det = segment_largest(
+                depth, self.env.camera_model("wrist"), near=above, radius=self.config.correction_radius
+            )
             if det is None:
                 self._event("grasp_correction", iteration=i + 1, found=False)
                 break
@@ -201,5 +212,6 @@ class WaypointController:
             reached.append(bool(ok))
             if self.cancelled:
                 break
-        return ExecutionResult(ticks=self.env.steps - start, reached=reached, corrections=corrections,
-                               success=self.env.success())
+        return ExecutionResult(
+            ticks=self.env.steps - start, reached=reached, corrections=corrections, success=self.env.success()
+        )

@@ -176,7 +176,9 @@ class SceneView:
                 self._sent = poses.copy()
             else:
                 delta = np.abs(poses - self._sent)
-                visible = (delta[:, :3].max(axis=1) > POSITION_EPS) | (delta[:, 3:].max(axis=1) > QUATERNION_EPS)
+                visible = (delta[:, :3].max(axis=1) > POSITION_EPS) | (
+                    delta[:, 3:].max(axis=1) > QUATERNION_EPS
+                )
                 moved = [b for b in self._bodies if b < len(poses) and visible[b]]
             if moved:
                 with self.client.atomic():

@@ -55,7 +55,9 @@ def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
 
     bad = client.submit("plan", {"checkpoint": str(tmp_path / "missing.pt"), "expert_episode_id": episode,
                                  "task": TASK, "seed": 3})  # fmt: skip
-    with client.watch(bad.job) as w:  # the worker's first torch import happens here: cold, it can take a while
+    with client.watch(
+        bad.job
+    ) as w:  # the worker's first torch import happens here: cold, it can take a while
         final = w.wait(timeout=120)
     assert final.state == "failed" and "does not exist" in final.reason
 

@@ -20,8 +20,17 @@ TASK = "pick_place/bar->blue"
 @pytest.fixture
 def demo(tmp_path):
     root = tmp_path / "data"
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=[TASK], episodes=1, data_dir=str(root),
-                          progress=False, image_size=(120, 160)))
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=[TASK],
+            episodes=1,
+            data_dir=str(root),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
     with EpisodeStore(root) as store:
         return root, store.episodes(task=TASK, role="expert")[0].id
 
@@ -35,8 +44,17 @@ def test_rollout_job_streams_progress_and_poses_and_stores_the_rollout(hub, work
     client = JobClient(hub.session)
     messages: list[str] = []
     poses: list = []
-    job = client.submit("rollout", {"checkpoint": "oracle", "expert_episode_id": expert, "task": TASK,
-                                    "seed": 4, "replans": 1, "speed": 2.0})
+    job = client.submit(
+        "rollout",
+        {
+            "checkpoint": "oracle",
+            "expert_episode_id": expert,
+            "task": TASK,
+            "seed": 4,
+            "replans": 1,
+            "speed": 2.0,
+        },
+    )
     from studio.backend import keys
 
     sub = hub.session.declare_subscriber(keys.job_key(job.job, "poses"), lambda s: poses.append(s))
@@ -76,8 +94,9 @@ def test_sim_worker_killed_mid_rollout_is_reported_within_5_s(hub, workers, demo
     proc = workers.start("sim", "sim-3", "--data-dir", str(root), handlers=(), only_handlers=False)
     wait_worker(hub.directory, "sim-3")
     client = JobClient(hub.session)
-    job = client.submit("rollout", {"checkpoint": "oracle", "expert_episode_id": expert, "task": TASK,
-                                    "seed": 2})
+    job = client.submit(
+        "rollout", {"checkpoint": "oracle", "expert_episode_id": expert, "task": TASK, "seed": 2}
+    )
     with client.watch(job.job) as w:
         w.wait(lambda w: w.progress is not None and w.progress.message.startswith("waypoint"), timeout=60)
         t_kill = time.monotonic()

@@ -17,7 +17,9 @@ def _args(*argv: str) -> argparse.Namespace:
 
 
 def test_reports_errors_and_demonstration_effect_per_variant():
-    result = follow_bench.measure(_args("--steps", "4", "--val-points", "2", "--variants", "paper,divided+cells (cpu)"))
+    result = follow_bench.measure(
+        _args("--steps", "4", "--val-points", "2", "--variants", "paper,divided+cells (cpu)")
+    )
     assert set(result["variants"]) == {"paper", "divided+cells (cpu)"}
     for v in result["variants"].values():
         assert [p["step"] for p in v["val"]] == [2, 4]
@@ -41,7 +43,9 @@ def test_match_task_shuffles_markers_and_the_path_ends_at_the_demonstrated_colou
         ex_layout, ag_layout = data._layout(task, e, 0), data._layout(task, a, 1)
         assert sorted(ag_layout) == [0, 1, 2, 3]
         end = data[i]["path"][-1, :3]
-        assert np.allclose(end, TARGETS_CAM[ag_layout[task]], atol=1e-6)  # the agent's marker of the task's colour
+        assert np.allclose(
+            end, TARGETS_CAM[ag_layout[task]], atol=1e-6
+        )  # the agent's marker of the task's colour
         moved += int(ex_layout[task] != ag_layout[task])
     assert moved > 0  # copying the demonstration's end point is not the answer
 

@@ -20,6 +20,10 @@ def test_measure_reports_throughput_latency_and_size():
     result = bench.measure(args)
     for key in ("train_samples_per_s", "train_samples_per_s_shared_expert", "plan_latency_ms", "replan_ms"):
         assert result[key] > 0
-    assert result["image_size"] == [96, 128] and result["state_shape"] == [64, 12, 16]  # cpu: trunk to layer2, stride 8
+    assert result["image_size"] == [96, 128] and result["state_shape"] == [
+        64,
+        12,
+        16,
+    ]  # cpu: trunk to layer2, stride 8
     assert result["params"] > 1_000_000 and result["batch"] == 2 and result["n_expert"] == 10
     assert result["reference"]["train_samples_per_s"] == 2.5 and "fwd_bwd_speedup_vs_reference_min" in result

@@ -23,12 +23,16 @@ def _args(*argv: str) -> argparse.Namespace:
 
 
 def test_grasp_is_the_first_closed_waypoint_and_release_the_next_open_one():
-    wps = np.array([[0.1, 0.0, 0.3, 0], [0.2, 0.1, 0.05, 1], [0.2, 0.1, 0.3, 1], [0.4, 0.2, 0.1, 0], [0.4, 0.2, 0.3, 0]])
+    wps = np.array(
+        [[0.1, 0.0, 0.3, 0], [0.2, 0.1, 0.05, 1], [0.2, 0.1, 0.3, 1], [0.4, 0.2, 0.1, 0], [0.4, 0.2, 0.3, 0]]
+    )
     grasp, release = plan_bench.grasp_and_release(wps)
     assert np.allclose(grasp, [0.2, 0.1]) and np.allclose(release, [0.4, 0.2])
     assert plan_bench.grasp_and_release(np.zeros((5, 4))) == (None, None)
     arrays = {"gripper_cmd": np.array([0, 0, 1, 1, 1, 0, 0.0]), "ee_pos_world": np.arange(21.0).reshape(7, 3)}
-    assert np.allclose(plan_bench.scripted_release(arrays), [15.0, 16.0])  # the step after the opening command
+    assert np.allclose(
+        plan_bench.scripted_release(arrays), [15.0, 16.0]
+    )  # the step after the opening command
     assert plan_bench.task_object("pick_place/cube->red") == "cube"
     with pytest.raises(SystemExit, match="scene/object->target"):
         plan_bench.task_object("metaworld/door-unlock-v3")

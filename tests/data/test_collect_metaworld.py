@@ -54,7 +54,9 @@ def test_collect_into_the_store_and_pair_the_pool_with_itself(tmp_path):
         }
         assert len({m.seed for m in metas}) == 2
     assert collect(cfg).already_present == 2  # resumable like the tabletop collection
-    view = PairDataset(tmp_path, split="test", image_size=(48, 48), scene="metaworld")  # the scene's own roles
+    view = PairDataset(
+        tmp_path, split="test", image_size=(48, 48), scene="metaworld"
+    )  # the scene's own roles
     assert len(view) == 4  # 2 demonstrations x 2 trajectories of the same pool, self-pairs included
     sample = view[0]
     assert sample["expert_frames"].shape == (10, 3, 48, 48) and sample["path"].shape == (50, 4)

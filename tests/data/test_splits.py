@@ -34,7 +34,9 @@ def test_metaworld_splits_follow_paper():
     assert hard == ["metaworld/window-open-v3", "metaworld/door-unlock-v3"]
     assert spec.scene == "metaworld" and spec.test == tuple(easy + hard) and len(spec.train) == 46
     assert spec.test_groups == {"easy": tuple(easy), "hard": tuple(hard)}
-    assert spec.replan_groups == ("hard",) and spec.replanned_tasks() == tuple(hard)  # the paper re-plans on hard
+    assert spec.replan_groups == ("hard",) and spec.replanned_tasks() == tuple(
+        hard
+    )  # the paper re-plans on hard
     assert sorted(spec.train + spec.test) == sorted(list_tasks("metaworld"))
     assert set(raw["twins"]) == set(spec.test) and set(raw["twins"].values()) <= set(spec.train)
     ablation = load_split("metaworld_ablation")
@@ -80,9 +82,13 @@ def test_resolve_tasks_takes_split_words_and_names_as_a_string_or_a_list():
     assert resolve_tasks("pick_place", "held-out") == held_out
     assert resolve_tasks("pick_place", ["test"]) == held_out
     assert resolve_tasks("pick_place", "pick_place/cube->red, pick_place/bar->blue") == [
-        "pick_place/cube->red", "pick_place/bar->blue"]
+        "pick_place/cube->red",
+        "pick_place/bar->blue",
+    ]
     assert resolve_tasks("pick_place", ["pick_place/cube->red,test", "pick_place/cube->red"]) == [
-        "pick_place/cube->red", *held_out]  # each task once, in order
+        "pick_place/cube->red",
+        *held_out,
+    ]  # each task once, in order
     assert len(resolve_tasks("pick_place", "all")) == 16
     assert len(resolve_tasks("push", "train")) == len(load_split("push").train)
 

@@ -15,7 +15,9 @@ MW_TASKS = ("metaworld/button-press-v3", "metaworld/pick-place-wall-v3", "metawo
 
 
 def _report(rates: dict[str, float], n: int = 10) -> dict:
-    tasks = {t: {"success": r, "reached": r, "grasped": r, "placed": r, "rollouts": n} for t, r in rates.items()}
+    tasks = {
+        t: {"success": r, "reached": r, "grasped": r, "placed": r, "rollouts": n} for t, r in rates.items()
+    }
     return {"tasks": tasks, "success": sum(rates.values()) / len(rates), "rollouts": n * len(rates),
             "mean_planning_ms": 80.0, "wall_s": 120.0}  # fmt: skip
 
@@ -78,8 +80,11 @@ def test_paper_protocol_row_replans_on_the_hard_tasks_only():
         assert full["tasks"][task]["success"] == pytest.approx(2 / 3)
     hard = ("metaworld/window-open-v3", "metaworld/door-unlock-v3")
     assert {t: paper["tasks"][t]["success"] for t in MW_TASKS} == pytest.approx(
-        {t: 2 / 3 if t in hard else 1 / 3 for t in MW_TASKS})
-    assert paper["success"] == pytest.approx(0.5) and paper["replan_cut_tasks"] == sorted(set(MW_TASKS) - set(hard))
+        {t: 2 / 3 if t in hard else 1 / 3 for t in MW_TASKS}
+    )
+    assert paper["success"] == pytest.approx(0.5) and paper["replan_cut_tasks"] == sorted(
+        set(MW_TASKS) - set(hard)
+    )
     table = render_markdown(rows, load_split("metaworld").test_groups)
     paper_line = table.strip().splitlines()[-1]
     assert paper_line.startswith("| osvi-wm | 2, hard only |") and "**50.0%**" in paper_line

@@ -30,8 +30,16 @@ class MissThenOracle:
         self.calls += 1
         self.seen_steps.append(self.env.steps)
         if self.calls == 1:
-            wps = np.array([[0.3, 0.8, 0.1, 1], [0.3, 0.8, 0.15, 1], [0.3, 0.8, 0.15, 0],
-                            [0.3, 0.8, 0.15, 0], [0.3, 0.8, 0.2, 0]], dtype=float)
+            wps = np.array(
+                [
+                    [0.3, 0.8, 0.1, 1],
+                    [0.3, 0.8, 0.15, 1],
+                    [0.3, 0.8, 0.15, 0],
+                    [0.3, 0.8, 0.15, 0],
+                    [0.3, 0.8, 0.2, 0],
+                ],
+                dtype=float,
+            )
             return type("P", (), {"waypoints_world": wps})()
         return self.oracle.plan(expert_frames, agent_frame, K, T_world_cam)
 
@@ -79,8 +87,17 @@ def test_jobs_are_deterministic_and_tasks_resolve():
 
 
 def test_evaluation_is_deterministic_and_stores_rollouts(tmp_path):
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue"], episodes=2,
-                          data_dir=str(tmp_path), progress=False, image_size=(120, 160)))
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=["pick_place/bar->blue"],
+            episodes=2,
+            data_dir=str(tmp_path),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
     a = evaluate("oracle", ["pick_place/bar->blue"], 2, seed=3, data_dir=tmp_path, progress=False)
     b = evaluate("oracle", ["pick_place/bar->blue"], 2, seed=3, data_dir=tmp_path, progress=False)
     strip = [(r["seed"], r["expert_episode_id"], r["success"], r["failure_stage"]) for r in a["rows"]]
@@ -110,20 +127,49 @@ def _tiny_checkpoint(path):
     from studio.model.train import CHECKPOINT_FORMAT
 
     torch.manual_seed(0)
-    model = ModelConfig(image_size=(48, 64), n_expert_frames=4, n_agent_frames=3, encoder_stages=2,
-                        state_channels=16, action_blocks=1, action_heads=2, action_attn_dim=16, action_mlp_dim=32,
-                        wm_blocks=1, wm_heads=2, wm_width=32, wm_mlp_dim=64, head_hidden=64)
+    model = ModelConfig(
+        image_size=(48, 64),
+        n_expert_frames=4,
+        n_agent_frames=3,
+        encoder_stages=2,
+        state_channels=16,
+        action_blocks=1,
+        action_heads=2,
+        action_attn_dim=16,
+        action_mlp_dim=32,
+        wm_blocks=1,
+        wm_heads=2,
+        wm_width=32,
+        wm_mlp_dim=64,
+        head_hidden=64,
+    )
     run = RunConfig(model=model, train=TrainConfig())
     path.parent.mkdir(parents=True)
-    torch.save({"format": CHECKPOINT_FORMAT, "config": run.to_dict(), "step": 7,
-                "model": OSVIWM(model).state_dict()}, path)
+    torch.save(
+        {
+            "format": CHECKPOINT_FORMAT,
+            "config": run.to_dict(),
+            "step": 7,
+            "model": OSVIWM(model).state_dict(),
+        },
+        path,
+    )
     return path
 
 
 def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
     root = tmp_path / "data"
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue"], episodes=1,
-                          data_dir=str(root), progress=False, image_size=(120, 160)))
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=["pick_place/bar->blue"],
+            episodes=1,
+            data_dir=str(root),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
     ck = _tiny_checkpoint(tmp_path / "run-a" / "best.pt")
     for _ in range(2):  # the second evaluation finds the registration made by the first
         report = evaluate(str(ck), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False)
@@ -134,7 +180,9 @@ def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
         (record,) = store.catalog.checkpoints("run-a")
         assert record.path == str(ck.resolve()) and record.step == 7
     with pytest.raises(FileNotFoundError, match="no checkpoint file"):
-        evaluate(str(tmp_path / "missing.pt"), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False)
+        evaluate(
+            str(tmp_path / "missing.pt"), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False
+        )
 
 
 def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_path):
@@ -142,8 +190,17 @@ def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_pa
     from studio.eval.evaluation import with_budget
 
     root = tmp_path / "data"
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue"], episodes=1,
-                          data_dir=str(root), progress=False, image_size=(120, 160)))
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=["pick_place/bar->blue"],
+            episodes=1,
+            data_dir=str(root),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
     ck = str(_tiny_checkpoint(tmp_path / "run" / "best.pt"))
     two = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=2, data_dir=root, progress=False)
     zero = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=0, data_dir=root, progress=False)
@@ -151,8 +208,14 @@ def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_pa
     derived = with_budget(two, 0)
     fields = ("task", "index", "seed", "expert_episode_id", "success", "reached", "grasped", "placed",
               "failure_stage", "replans", "attempt_stages")  # fmt: skip
-    assert [{k: r[k] for k in fields} for r in derived["rows"]] == [{k: r[k] for k in fields} for r in zero["rows"]]
-    assert derived["replan"] == 0 and derived["derived_from_replan"] == 2 and derived["success"] == zero["success"]
+    assert [{k: r[k] for k in fields} for r in derived["rows"]] == [
+        {k: r[k] for k in fields} for r in zero["rows"]
+    ]
+    assert (
+        derived["replan"] == 0
+        and derived["derived_from_replan"] == 2
+        and derived["success"] == zero["success"]
+    )
     assert with_budget(two, 2)["rows"] == two["rows"]
     with pytest.raises(ValueError, match="cannot derive"):
         with_budget(zero, 1)
@@ -162,8 +225,17 @@ def test_results_command_writes_a_table_of_held_out_success(tmp_path, capsys):
     from studio.cli import main
 
     root = tmp_path / "data"
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["test"], episodes=1, data_dir=str(root),
-                          progress=False, image_size=(120, 160)))
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=["test"],
+            episodes=1,
+            data_dir=str(root),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
     out = tmp_path / "results.md"
     assert main(["results", "--policy", "oracle=oracle", "--episodes", "1", "--replan", "0", "1", "--workers", "1",
                  "--data-dir", str(root), "--out", str(out)]) == 0  # fmt: skip

@@ -88,7 +88,9 @@ def test_flips_are_shared_by_an_expert_and_its_agent_clips():
 
 
 def test_expert_hflip_mirrors_the_expert_video_alone():
-    cfg = TrainConfig(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, expert_hflip=1.0, **NO_COLOUR)
+    cfg = TrainConfig(
+        crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, expert_hflip=1.0, **NO_COLOUR
+    )
     expert = torch.randint(0, 256, (2, 2, 3, 24, 32), dtype=torch.uint8)
     agent = torch.randint(0, 256, (2, 3, 3, 24, 32), dtype=torch.uint8)
     out = augment_batch(expert, agent, K.float()[None].repeat(2, 1, 1), torch.arange(2), torch.arange(2),
@@ -130,7 +132,9 @@ def test_colour_jitter_stays_in_range_and_is_constant_over_a_clip():
 def _uniform_pairs(rgb: list[int], u: int, **settings) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Mean colours of ``u`` uniform 8×8 expert videos of colour ``rgb`` (U, 2, 3) and of their two agent clips
     each (2U, 3, 3) after ``augment_batch`` with only ``settings`` on; and the clips' expert index."""
-    cfg = TrainConfig(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, **NO_COLOUR, **settings)
+    cfg = TrainConfig(
+        crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, vflip=0.0, **NO_COLOUR, **settings
+    )
     scene = torch.tensor(rgb, dtype=torch.uint8).view(1, 1, 3, 1, 1).repeat(1, 1, 1, 8, 8)
     ids = torch.arange(u).repeat_interleave(2)
     out = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),

@@ -76,14 +76,20 @@ def test_the_cpu_preset_names_the_demonstrated_task_on_pick_and_place_only():
     assert preset("cpu", "pick_place").train.demo_task_weight == 1.0
     assert preset("cpu", "push").train.demo_task_weight == 0.0
     assert preset("cpu", "metaworld").train.demo_task_weight == 0.0
-    assert preset("cpu", "metaworld").with_overrides(["train.demo_task_weight=1"]).train.demo_task_weight == 1.0
+    assert (
+        preset("cpu", "metaworld").with_overrides(["train.demo_task_weight=1"]).train.demo_task_weight == 1.0
+    )
     assert preset("paper", "pick_place").train.demo_task_weight == 0.0
 
 
 def test_the_cpu_preset_adds_push_its_colour_and_mirror_augmentation_and_no_other_scene():
     push, pick = preset("cpu", "push").train, preset("cpu", "pick_place").train
     assert (push.expert_hflip, push.pair_hue) == (0.5, 0.5)
-    assert (pick.expert_hflip, pick.pair_hue) == (0.0, 0.0) == (preset("cpu").train.expert_hflip, preset("cpu").train.pair_hue)
+    assert (
+        (pick.expert_hflip, pick.pair_hue)
+        == (0.0, 0.0)
+        == (preset("cpu").train.expert_hflip, preset("cpu").train.pair_hue)
+    )
     assert preset("cpu", "metaworld").train.pair_hue == 0.0
     assert preset("cpu", "push").with_overrides(["train.pair_hue=0"]).train.pair_hue == 0.0
 

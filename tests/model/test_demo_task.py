@@ -52,7 +52,10 @@ def test_the_parts_loss_is_the_mean_over_groups_and_right_needs_every_group():
     table = ((0, 0), (0, 1), (1, 0))
     tasks = torch.tensor([1, 1])  # object 0, target 1
     loss, right = demo_task_loss(logits, tasks, (2, 2), table)
-    expected = (F.cross_entropy(logits[:, :2], torch.tensor([0, 0])) + F.cross_entropy(logits[:, 2:], torch.tensor([1, 1]))) / 2
+    expected = (
+        F.cross_entropy(logits[:, :2], torch.tensor([0, 0]))
+        + F.cross_entropy(logits[:, 2:], torch.tensor([1, 1]))
+    ) / 2
     assert torch.allclose(loss, expected)
     assert right.tolist() == [True, False]  # the second names the object but not the target
     with pytest.raises(ValueError, match="need 5"):

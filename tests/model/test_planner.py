@@ -101,7 +101,9 @@ def test_load_from_a_training_checkpoint(tmp_path, sample):
 def test_the_task_head_names_a_demonstration_by_its_parts(tmp_path, sample):
     source = SyntheticPairs(n_tasks=3)
     source.tasks = ["push/red-forward", "push/red-backward", "push/blue-forward"]
-    run = tiny_run_config(max_steps=1, batch_size=4, val_every=100, demo_task_weight=1.0, demo_task_labels="parts")
+    run = tiny_run_config(
+        max_steps=1, batch_size=4, val_every=100, demo_task_weight=1.0, demo_task_labels="parts"
+    )
     train(run, source, None, tmp_path, show_progress=False)
     planner = Planner.load(tmp_path / "last.pt")
     box, direction = planner.name_demonstration(sample["expert_frames"])

@@ -23,7 +23,9 @@ def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
     train(tiny_run_config(max_steps=3, batch_size=4, val_every=100), SyntheticPairs(), None, out,
           show_progress=False)  # fmt: skip
-    cfg = DecoderConfig(base_channels=16, stages=3, batch_size=4, steps=2, val_every=100, log_every=1, num_workers=0)
+    cfg = DecoderConfig(
+        base_channels=16, stages=3, batch_size=4, steps=2, val_every=100, log_every=1, num_workers=0
+    )
     train_decoder(out / "last.pt", SyntheticPairs(), None, out / "decoder", cfg, show_progress=False)
     return out
 
@@ -33,7 +35,11 @@ def test_exported_policy_plans_like_the_checkpoint_at_a_fraction_of_the_size(tra
     sizes = export_policy(src, tmp_path / "policy.pt", decoder=trained / "decoder" / "last.pt")
     assert sizes["policy_bytes"] < 0.25 * src.stat().st_size  # no optimiser state, half-precision weights
     policy = load_checkpoint(tmp_path / "policy.pt")
-    assert "optimizer" not in policy and policy["step"] == 3 and policy["config"] == load_checkpoint(src)["config"]
+    assert (
+        "optimizer" not in policy
+        and policy["step"] == 3
+        and policy["config"] == load_checkpoint(src)["config"]
+    )
     sample = SyntheticPairs()[0]
     args = (sample["expert_frames"], sample["agent_frames"][0], sample["K"], np.eye(4))
     full, small = Planner.load(src).plan(*args), Planner.load(tmp_path / "policy.pt").plan(*args)

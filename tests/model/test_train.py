@@ -160,7 +160,9 @@ def test_resume_refuses_another_configuration_or_dataset(tmp_path):
 def test_a_resumed_run_can_be_lengthened(tmp_path):
     run = tiny_run_config(max_steps=2, batch_size=4, val_every=100, log_every=1)
     train(run, SyntheticPairs(), None, tmp_path, show_progress=False)
-    longer = train(run.with_overrides(["train.max_steps=4"]), SyntheticPairs(), None, tmp_path, show_progress=False)
+    longer = train(
+        run.with_overrides(["train.max_steps=4"]), SyntheticPairs(), None, tmp_path, show_progress=False
+    )
     assert longer.step == 4 and [r["step"] for r in records(tmp_path) if "loss" in r] == [1, 2, 3, 4]
     resumes = [r for r in records(tmp_path) if r.get("event") == "resume"]
     assert resumes and resumes[-1]["step"] == 2 and resumes[-1]["total_steps"] == 4
@@ -185,7 +187,14 @@ def test_a_run_can_start_from_another_checkpoints_weights(tmp_path):
     assert json.loads((tmp_path / "b" / "config.json").read_text())["init"].endswith("last.pt")
     other = first.with_overrides(["model.head_hidden=8"])
     with pytest.raises(CheckpointMismatch, match="head_hidden"):
-        train(other, SyntheticPairs(), None, tmp_path / "c", show_progress=False, init=tmp_path / "a" / "last.pt")
+        train(
+            other,
+            SyntheticPairs(),
+            None,
+            tmp_path / "c",
+            show_progress=False,
+            init=tmp_path / "a" / "last.pt",
+        )
 
 
 def test_cancellation_checkpoints_and_stops_and_progress_is_reported(tmp_path):
@@ -283,7 +292,9 @@ def test_demonstration_effect_is_zero_for_the_same_video_and_positive_for_anothe
 def test_validation_reports_the_demonstration_effect(tmp_path):
     data = SyntheticPairs(n_tasks=2, episodes_per_task=2)
     run = tiny_run_config(max_steps=4, val_every=4, **NO_AUG)
-    train(run, data, SyntheticPairs(n_tasks=2, episodes_per_task=2, split="val"), tmp_path, show_progress=False)
+    train(
+        run, data, SyntheticPairs(n_tasks=2, episodes_per_task=2, split="val"), tmp_path, show_progress=False
+    )
     val = [r for r in records(tmp_path) if r.get("split") == "val"]
     assert val and val[-1]["val_demo_effect_m"] > 0.0
 
@@ -397,7 +408,11 @@ def test_parts_labels_give_the_head_one_group_per_part_and_replace_a_task_head_o
 
     def push_pairs(split="train"):
         source = SyntheticPairs(n_tasks=3, split=split)
-        source.tasks = ["push/red-forward", "push/red-backward", "push/blue-forward"]  # what the labels come from
+        source.tasks = [
+            "push/red-forward",
+            "push/red-backward",
+            "push/blue-forward",
+        ]  # what the labels come from
         return source
 
     whole = tiny_run_config(max_steps=2, batch_size=4, val_every=100, demo_task_weight=1.0)
@@ -421,7 +436,9 @@ def test_parts_labels_give_the_head_one_group_per_part_and_replace_a_task_head_o
 
 @pytest.mark.slow
 def test_a_no_world_model_checkpoint_grows_into_the_full_model_on_init(tmp_path):
-    ablated = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(["model.world_model=false"])
+    ablated = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(
+        ["model.world_model=false"]
+    )
     train(ablated, SyntheticPairs(), None, tmp_path / "a", show_progress=False)
     ckpt_path = tmp_path / "a" / "last.pt"
     full = tiny_run_config(max_steps=1, batch_size=4, val_every=100, lr_max=1e-12, lr_final=1e-12)
@@ -434,12 +451,21 @@ def test_a_no_world_model_checkpoint_grows_into_the_full_model_on_init(tmp_path)
                for k in trained if trained[k].is_floating_point() and "running" not in k)  # fmt: skip
     # The other way round drops trained weights, so it stays an error.
     with pytest.raises(CheckpointMismatch, match="world_model"):
-        train(ablated, SyntheticPairs(), None, tmp_path / "c", show_progress=False, init=tmp_path / "b" / "last.pt")
+        train(
+            ablated,
+            SyntheticPairs(),
+            None,
+            tmp_path / "c",
+            show_progress=False,
+            init=tmp_path / "b" / "last.pt",
+        )
 
 
 @pytest.mark.slow
 def test_frozen_parts_keep_their_weights_and_batchnorm_statistics_while_the_rest_trains(tmp_path):
-    ablated = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(["model.world_model=false"])
+    ablated = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(
+        ["model.world_model=false"]
+    )
     train(ablated, SyntheticPairs(), None, tmp_path / "a", show_progress=False)
     start = load_checkpoint(tmp_path / "a" / "last.pt")["model"]
     grow = tiny_run_config(max_steps=3, batch_size=4, val_every=2, lr_max=1e-2).with_overrides(
@@ -450,7 +476,9 @@ def test_frozen_parts_keep_their_weights_and_batchnorm_statistics_while_the_rest
           init=tmp_path / "a" / "last.pt")  # fmt: skip
     after = load_checkpoint(tmp_path / "b" / "last.pt")["model"]
     frozen = [k for k in start if k.startswith(("encoder.", "action_model."))]
-    assert any("running_mean" in k for k in frozen)  # BatchNorm statistics are among them (train mode would move them)
+    assert any(
+        "running_mean" in k for k in frozen
+    )  # BatchNorm statistics are among them (train mode would move them)
     assert all(torch.equal(start[k], after[k]) for k in frozen)
     moved = [k for k in start if k.startswith(("head.", "temporal_pool.")) and start[k].is_floating_point()]
     assert any(not torch.equal(start[k], after[k]) for k in moved)

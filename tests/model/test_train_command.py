@@ -140,5 +140,7 @@ def test_trains_on_a_real_episode_store(tmp_path):
 
 def test_repeated_set_flags_all_apply():
     """`--set a=1 --set b=2` keeps both overrides (argparse's plain nargs would keep only the last flag's)."""
-    args = _args("--data", "x", "--out", "y", "--set", "train.val_every=7", "--set", "model.action_attention=cross")
+    args = _args(
+        "--data", "x", "--out", "y", "--set", "train.val_every=7", "--set", "model.action_attention=cross"
+    )
     assert args.set == ["train.val_every=7", "model.action_attention=cross"]

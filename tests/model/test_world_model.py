@@ -10,7 +10,9 @@ from studio.model.world_model import WorldModel
 torch.set_num_threads(1)
 
 
-@pytest.mark.parametrize(("state_shape", "tokens"), [((6, 3, 5), "map"), ((10,), "map"), ((6, 3, 5), "cells")])
+@pytest.mark.parametrize(
+    ("state_shape", "tokens"), [((6, 3, 5), "map"), ((10,), "map"), ((6, 3, 5), "cells")]
+)
 def test_steps_with_cache_equal_the_full_causal_pass(state_shape, tokens):
     torch.manual_seed(0)
     wm = WorldModel(state_shape, width=16, blocks=1, heads=4, mlp_dim=32, tokens=tokens).eval()
@@ -61,7 +63,9 @@ def test_residual_world_model_starts_as_the_identity_and_learns_changes():
     torch.manual_seed(0)
     wm = WorldModel((4, 2, 3), width=16, blocks=1, heads=2, mlp_dim=16, residual=True)
     states, actions = torch.randn(2, 3, 4, 2, 3), torch.randn(2, 3, 4, 2, 3)
-    assert torch.equal(wm(states, actions), states)  # every input's layout survives the first steps of training
+    assert torch.equal(
+        wm(states, actions), states
+    )  # every input's layout survives the first steps of training
     nxt, _ = wm.step(states[:, 0], actions[:, 0], None)
     assert torch.equal(nxt, states[:, 0])
     target = states + 1.0

@@ -22,7 +22,9 @@ def _camera() -> CameraModel:
 def test_world_pixel_world_round_trip():
     cam = _camera()
     rng = np.random.default_rng(1)
-    p_cam = np.column_stack([rng.uniform(-0.3, 0.3, 100), rng.uniform(-0.2, 0.2, 100), rng.uniform(0.3, 2.0, 100)])
+    p_cam = np.column_stack(
+        [rng.uniform(-0.3, 0.3, 100), rng.uniform(-0.2, 0.2, 100), rng.uniform(0.3, 2.0, 100)]
+    )
     p_world = cam.cam_to_world(p_cam)
     uv = cam.world_to_pixel(p_world)
     back = cam.pixel_to_world(uv, p_cam[:, 2])

@@ -16,7 +16,9 @@ def test_robot_loads_in_scene(scene, robot):
     assert model.camera("external").id >= 0 and model.camera(info.wrist_camera).id >= 0
     for o in scenes.scene_info(scene).objects:
         assert model.body(f"obj_{o}").mass[0] > 0.01, "objects must have mass (inertiagrouprange)"
-    robot_bodies = [model.body(i) for i in range(model.nbody) if model.body(i).name.startswith(info.body_prefix)]
+    robot_bodies = [
+        model.body(i) for i in range(model.nbody) if model.body(i).name.startswith(info.body_prefix)
+    ]
     assert robot_bodies and all(model.body_gravcomp[b.id] == 1.0 for b in robot_bodies)
     if robot == "sawyer":
         assert model.nmocap == 1

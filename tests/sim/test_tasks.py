@@ -9,7 +9,12 @@ from studio.sim.tasks import TASKS, get_task, list_tasks
 def test_registry_names():
     pp = list_tasks("pick_place")
     assert len(pp) == 16 and "pick_place/bar->yellow" in pp
-    assert list_tasks("push") == ["push/red-forward", "push/red-backward", "push/blue-forward", "push/blue-backward"]
+    assert list_tasks("push") == [
+        "push/red-forward",
+        "push/red-backward",
+        "push/blue-forward",
+        "push/blue-backward",
+    ]
     with pytest.raises(ValueError, match="unknown task"):
         get_task("pick_place/ball->red")
 

@@ -61,7 +61,9 @@ def test_grasp_correction_centres_on_an_offset_object(env_factory):
 def test_a_gripper_change_happens_at_the_lower_of_its_two_waypoints():
     from studio.sim.waypoints import gripper_flags
 
-    scripted = np.array([[0, 0, 0.045, 1], [0, 0, 0.15, 1], [0, 1, 0.15, 1], [0, 1, 0.055, 0], [0, 1, 0.15, 0]])
+    scripted = np.array(
+        [[0, 0, 0.045, 1], [0, 0, 0.15, 1], [0, 1, 0.15, 1], [0, 1, 0.055, 0], [0, 1, 0.15, 0]]
+    )
     assert gripper_flags(scripted).tolist() == [True, True, True, False, False]  # already on the lower points
     # The same pick and place summarised the other way round: open at the object, closed above the zone.
     shifted = np.array([[0, 0, 0.25, 0], [0, 0, 0.05, 0], [0, 1, 0.16, 1], [0, 1, 0.04, 1], [0, 1, 0.11, 0]])
@@ -83,7 +85,9 @@ def test_a_plan_that_closes_after_the_object_still_picks_and_places(env_factory)
 
 
 @pytest.mark.parametrize("correct_height", [True, False])
-def test_a_grasp_planned_too_high_is_lowered_to_the_object_only_with_height_correction(env_factory, correct_height):
+def test_a_grasp_planned_too_high_is_lowered_to_the_object_only_with_height_correction(
+    env_factory, correct_height
+):
     env = env_factory("pick_place", "panda")
     env.reset("pick_place/bar->blue", 4)
     scripted = expert_waypoints(env)

@@ -239,12 +239,16 @@ def _wait(predicate, timeout: float, what: str, state=None):
         if value:
             return value
         time.sleep(0.1)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}" + (f"; {state()}" if state else ""))
+    raise AssertionError(
+        f"timed out after {timeout} s waiting for {what}" + (f"; {state()}" if state else "")
+    )
 
 
 def _teleop_state(tab) -> str:
     """What the teleop panel shows and what its tab is busy with, for failure messages."""
-    return f"status {tab.teleop.status.content!r}, tab actions {tab.actions}, recording {tab.teleop._recording}"
+    return (
+        f"status {tab.teleop.status.content!r}, tab actions {tab.actions}, recording {tab.teleop._recording}"
+    )
 
 
 def _stop_and_save(page, tab) -> None:
@@ -254,7 +258,12 @@ def _stop_and_save(page, tab) -> None:
     _click_until_done(page.get_by_role("button", name="Stop & save"),
                       lambda: _wait(lambda: not tp.status.content.startswith("Recording"), 30,
                                     "Stop & save to be taken", lambda: _teleop_state(tab)))  # fmt: skip
-    _wait(lambda: tp.status.content.startswith("Saved"), 120, "the episode to be stored", lambda: _teleop_state(tab))
+    _wait(
+        lambda: tp.status.content.startswith("Saved"),
+        120,
+        "the episode to be stored",
+        lambda: _teleop_state(tab),
+    )
 
 
 def _screen_point(page, client, point: np.ndarray) -> tuple[float, float]:
@@ -541,7 +550,9 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     _click(page.get_by_role("combobox", name="Scene"))
     _click(page.get_by_role("option", name="metaworld", exact=True))
     _wait(lambda: tp.info is not None and tp.info.scene == "metaworld", 120, "the Meta-World session to open")
-    _wait(lambda: "ready" in tp.status.content and tp.info.task in tp.status.content, 60, "the session's status")
+    _wait(
+        lambda: "ready" in tp.status.content and tp.info.task in tp.status.content, 60, "the session's status"
+    )
     assert tp.robot.options == ("sawyer",) and tp.info.robot == "sawyer"
     task = tp.info.task
     assert task.startswith("metaworld/")
@@ -573,7 +584,11 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     studio.runs.set_active(shipped[0].id)
     _open_tab(page, "Imitate", "Choose a")
     im.task.value = next(label for label, name in im.labels.items() if name == task)
-    _wait(lambda: any(o.startswith(new.id) for o in im.demo.options), 20, "the recording among the demonstrations")
+    _wait(
+        lambda: any(o.startswith(new.id) for o in im.demo.options),
+        20,
+        "the recording among the demonstrations",
+    )
     im.demo.value = next(o for o in im.demo.options if o.startswith(new.id))
     before_job = im.plan_job
     _click(page.get_by_role("button", name="Plan", exact=True))

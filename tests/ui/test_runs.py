@@ -56,7 +56,9 @@ def test_active_checkpoint_defaults_persists_and_falls_back(tmp_path):
     assert [c.id for c in reg.default_policies()] == ["default/osvi-pick-place"]
     assert reg.active().id == "default/osvi-pick-place", "a shipped policy is active from the start"
     assert reg.active().label == "shipped policy osvi-pick-place"
-    (policies / "osvi-pick-place.json").write_text('{"summary": "3 % held-out success"}')  # its measured results
+    (policies / "osvi-pick-place.json").write_text(
+        '{"summary": "3 % held-out success"}'
+    )  # its measured results
     assert reg.active().label == "shipped policy osvi-pick-place — 3 % held-out success"
     assert reg.active().summary == "3 % held-out success"
     _run(tmp_path / "data", "train-a")

@@ -97,7 +97,9 @@ def test_pose_updates_send_visible_motion_only_and_never_lose_slow_drift():
         step[1, 0] += k * 0.3 * POSITION_EPS
         if view.apply(step):
             sent_at.append(k)
-    assert sent_at == [4, 8, 12], sent_at  # re-sent as soon as it is > POSITION_EPS from what the browser shows
+    assert sent_at == [4, 8, 12], (
+        sent_at
+    )  # re-sent as soon as it is > POSITION_EPS from what the browser shows
     assert abs(view._bodies[1].position[0] - (0.1 + 12 * 0.3 * POSITION_EPS)) < 1e-6
     turned = step.copy()  # b stays where it is
     turned[0, 3:] = [np.cos(0.01), 0, 0, np.sin(0.01)]  # 1.1° about z
