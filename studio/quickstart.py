@@ -24,15 +24,15 @@ Stages, each resumable (re-running the command skips finished work):
    none), ``--eval-episodes`` rollouts per unseen task, with ``--replan`` re-plans.
 
 The wall time of each stage and the result go to stdout and to ``RUN_DIR/quickstart.json``. The training stages
-are the recipe measured best so far on pick-and-place (docs/results.md).
+are the recipe measured best so far on pick-and-place (docs/experiments.md).
 ``--variant`` picks the model and its default schedule (``VARIANT_STEPS``): the full OSVI-WM (default; 1600 +
 1100 steps without 𝒲, then 700 with it) or the paper's no-world-model ablation (1600 + 1100 steps). Why the
 full model is grown rather than trained whole from the start: trained whole, its plan followed the
 demonstration but never the agent's scene in 1700 steps (47 % held-out), while the same
 network without 𝒲 learns to find the demonstrated object in the agent's scene within 800 steps; grown from
-that, the full model kept it (docs/results.md) — mostly: with the encoder still training, the
+that, the full model kept it (docs/experiments.md) — mostly: with the encoder still training, the
 grow stage lost 3.5–10 points of held-out success against its starting point in all four runs, and with
-the encoder fixed it lost none in three (docs/results.md).
+the encoder fixed it lost none in three (docs/experiments.md).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ from pathlib import Path
 
 from studio.data.paths import add_data_dir_argument, resolve_data_dir
 
-# The pick-and-place recipe on top of the ``cpu`` preset (docs/results.md).
+# The pick-and-place recipe on top of the ``cpu`` preset (docs/experiments.md).
 BASE_SETTINGS = ("train.expert_hflip=0.5", "train.hflip=0.5")
 REFINE_SETTINGS = ("train.aug_warmup=0", "train.alpha_warmup=0")
 # The grow stage: 𝒲 starts untrained, so the preset's α warm-up (𝓛_wm off for the first 10 % of the steps) stays;
@@ -55,7 +55,7 @@ GROW_SETTINGS = ("train.aug_warmup=0", "train.freeze=encoder")
 NO_WORLD_MODEL = ("model.world_model=false",)
 # The models: the full OSVI-WM, or the paper's no-world-model ablation (one latent action straight into the
 # waypoint head), and each one's default (train, refine, grow) steps. The no-world-model schedule reached 100 %
-# held-out in 29 min end to end (docs/results.md); OSVI-WM trains it first, then grows 𝒲 on it.
+# held-out in 29 min end to end (docs/experiments.md); OSVI-WM trains it first, then grows 𝒲 on it.
 VARIANTS: tuple[str, ...] = ("osvi-wm", "no-world-model")
 VARIANT_STEPS: dict[str, tuple[int, int, int]] = {
     "osvi-wm": (1600, 1100, 700),

@@ -4,7 +4,7 @@ Trains the tiny test-size model on ``synthetic_task`` (four targets; only the de
 layout variant and reports, at a few validation points, the final-point and path errors and the demonstration
 effect (how far the plan moves when the demonstration is swapped for another task's; ``train``). Predicting the
 mean target gives a final error of about 0.18 m and an effect of 0. The variants are the π attention layout and
-the world model's token layout and residual form (``config``); docs/results.md holds a measured table.
+the world model's token layout and residual form (``config``); docs/experiments.md holds a measured table.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ open one after it). Reported, per task and over all:
 * ``release_err_m`` — median distance from the release point to where the agent's scripted expert released.
 * ``scene_dependence`` — one demonstration planned against every scene: the spread (std, xy) of the grasp point
   divided by the spread of the task's object over those scenes. 1 when the grasp follows the object, 0 when the
-  plan ignores the agent's frame (the failure docs/results.md first measured by hand).
+  plan ignores the agent's frame (the failure docs/experiments.md first measured by hand).
 * ``named`` — for a checkpoint trained with the demonstration-task loss (``demo_task``), what its head calls the
   demonstrations used, counted: a training task's name, or the object and the target. On a held-out task it
   shows whether the demonstration was read as its own parts or as the nearest training task.

@@ -174,7 +174,7 @@ class TrainConfig:
         alpha_warmup: fraction of the steps trained with α = 0 (no 𝓛_wm, no target encodings) before the schedule
             starts. From random weights, 𝓛_wm from step 0 holds the plan at the mean path: the encoder's pooled
             keypoints start out static, and pulling the predicted keypoints onto them erases what π read from the
-            demonstration (docs/results.md). Once π follows the demonstration, 𝓛_wm does no harm.
+            demonstration (docs/experiments.md). Once π follows the demonstration, 𝓛_wm does no harm.
         wm_loss, stop_gradient: ablation switches.
         demo_task_weight: weight of an auxiliary cross-entropy that makes π name the demonstration's task from
             its outputs at the expert frames (0 = off, the paper's loss). Not in the paper: a probe of whether
@@ -187,7 +187,7 @@ class TrainConfig:
         expert_hflip: probability of mirroring an expert video alone, its agent clips not. Our tasks are named
             by colours (``bar->blue``), which a mirror keeps, so the mirrored video is still a demonstration of
             the task; what it breaks is "grasp where the demonstration grasped", the same-place shortcut a π
-            with per-cell time attention finds first (docs/results.md).
+            with per-cell time attention finds first (docs/experiments.md).
         pair_hue: probability of rotating the hue of an expert video and its agent clips by one shared random
             angle (0..2π; not in the paper; ``augment``), so that a colour stops predicting a motion.
         pair_channels: probability of reordering the RGB channels of an expert video and its agent clips by one
@@ -198,7 +198,7 @@ class TrainConfig:
             no-world-model checkpoint while the encoder and π it inherits stay as they are.
         mixup, mixup_min: asymmetric demonstration mixup with β ~ U(mixup_min, 1) and a partner of another task.
         aug_warmup: fraction of the steps trained on clean pairs (no augmentation, no mixup) before both start —
-            augmentation noise lengthens the plateau before π starts reading the demonstration (docs/results.md).
+            augmentation noise lengthens the plateau before π starts reading the demonstration (docs/experiments.md).
         seed: every random choice of the run derives from it.
         val_every, val_batches: validation cadence (steps) and size (batches; 0 = the whole validation set).
         checkpoint_every, log_every: bookkeeping cadence in steps.
@@ -335,7 +335,7 @@ def _from_dict(cls, d: dict[str, Any]):
 
 
 PRESETS = ("paper", "paper-metaworld", "cpu")
-#: Training settings the ``cpu`` preset adds for one scene, each measured (docs/results.md); a scene not listed
+#: Training settings the ``cpu`` preset adds for one scene, each measured (docs/experiments.md); a scene not listed
 #: (Meta-World) gets the preset as it is. The demonstration-task loss: on pick-and-place it was the only setting
 #: that found the demonstrated object; on Meta-World it made held-out success collapse (14.5 % → 0 %); on push
 #: it taught "the blue box goes forward" (the only blue task in training) and held the unseen ``blue-backward``

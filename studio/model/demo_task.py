@@ -4,7 +4,7 @@
 trained to name what the demonstration shows. ``TrainConfig.demo_task_labels`` chooses the names:
 
 * ``"task"`` — one class per training task. On unseen tasks π then answers with the nearest training task:
-  push's held-out ``blue-backward`` was pushed forward like ``blue-forward`` (docs/results.md).
+  push's held-out ``blue-backward`` was pushed forward like ``blue-forward`` (docs/experiments.md).
 * ``"parts"`` — one classifier per part of a tabletop task: the object (pick-and-place) or box (push), and the
   target zone or push direction. Every part of a held-out combination (``bar`` and ``yellow`` in
   ``bar->yellow``) was named in training, so its name is made of names π has learned; the whole-task labels

@@ -27,7 +27,7 @@ context frames (π's expert frames, all cells, all times) — a content-addresse
 matching the demonstrated object by appearance in one hop. The context tokens themselves do not cross-attend, so
 their outputs are those of the divided layout, and the cross keys and values of the context are cached once.
 Measured on the pick-and-place data it did not help within 500 steps (validation path error 0.079 m, as
-divided; docs/results.md).
+divided; docs/experiments.md).
 
 Caching: ``forward(x_new, cache)`` processes new frames given the keys/values of all earlier frames and returns
 the extended cache. Feeding frames one at a time with the cache gives exactly the outputs of one pass over the

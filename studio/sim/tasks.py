@@ -29,7 +29,7 @@ from studio.sim.scenes import SCENES, Layout, scene_info
 # shuffles the objects among their slots while every target zone keeps its own location (red, green, blue,
 # yellow from left to right, jittered by a few millimetres). An earlier version shuffled the zones too; that is
 # a harder problem than the paper's (the agent must match the zone by colour, not by where the expert put the
-# object), and our CPU-budget training could not learn it (docs/results.md).
+# object), and our CPU-budget training could not learn it (docs/experiments.md).
 PP_SLOTS_X = np.array([-0.21, -0.07, 0.07, 0.21])
 PP_OBJECT_Y = 0.38
 PP_TARGET_Y = 0.64

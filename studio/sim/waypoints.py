@@ -64,7 +64,7 @@ class ControllerConfig:
         correction_radius: only objects within this distance of the planned grasp are candidates.
         correct_grasp_height: when grasp correction found the object, grasp no higher than its middle (half the
             blob's top height above the table), never below ``min_grasp_z``. Not in the paper (its correction
-            is horizontal); off gives the paper's behaviour. Measured in docs/results.md.
+            is horizontal); off gives the paper's behaviour. Measured in docs/experiments.md.
         close_ticks: ticks to wait after closing the gripper; ``open_ticks`` likewise after opening.
         min_grasp_z: lowest grasp-site height for a grasp (keeps fingertips off the table), per robot.
     """
