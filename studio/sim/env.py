@@ -22,6 +22,7 @@ from studio.sim import rendering, robots, scenes
 from studio.sim.camera import CameraModel
 from studio.sim.ik import make_controller
 from studio.sim.metaworld_tasks import MetaWorldTask
+from studio.sim.physics_state import STATE_SPEC, check_states
 from studio.sim.tasks import Task, get_task
 
 #: Where targets are clamped to: (min, max) per world axis of the grasp site, metres.
@@ -66,6 +67,7 @@ class Simulator(Protocol):
     def ee_pos(self) -> np.ndarray: ...
 
     def reset(self, task: str, seed: int) -> None: ...
+    def restore(self, task: str, seed: int, states: np.ndarray, gripper_cmd: float) -> None: ...
     def step(self, target_pos: np.ndarray, gripper: float) -> None: ...
     def success(self) -> bool: ...
     def stages(self) -> dict[str, bool]: ...
@@ -166,6 +168,30 @@ class SimEnv:
         self.target = self.ee_pos.copy()
         self.initial_objects = {o: p[:3].copy() for o, p in self.object_poses().items()}
         self._ever = {"reached": False, "grasped": False}
+
+    def restore(self, task: str | Task, seed: int, states: np.ndarray, gripper_cmd: float) -> None:
+        """Continue a recorded episode of (``task``, ``seed``) from its last recorded tick.
+
+        ``states`` (T, S) are MuJoCo integration states (``mjSTATE_INTEGRATION``), one per tick from the
+        reset on, as :class:`~studio.sim.recorder.Recorder` keeps them; ``gripper_cmd`` is the gripper
+        command in force at the last one. The scene is reset (task layout, target zones), each state is
+        set in turn so that the stages reached on the way count as if the episode had run, and the arm
+        controller takes over from the last: stepping on with the commands the episode had continues it
+        bit for bit. Raises ValueError if the states do not fit this model (the scene changed since).
+        """
+        check_states(self.model, states)
+        self.reset(task, seed)
+        for s in np.asarray(states, dtype=np.float64):
+            mujoco.mj_setState(self.model, self.data, s, STATE_SPEC)
+            mujoco.mj_forward(self.model, self.data)
+            if not self._ever["grasped"]:
+                self._stages_now()
+        # mj_forward rewrote the warm-start accelerations; the next step must start from the recorded ones.
+        mujoco.mj_setState(self.model, self.data, np.asarray(states[-1], dtype=np.float64), STATE_SPEC)
+        self.controller.sync(self.data)
+        self.steps = len(states) - 1
+        self.gripper_cmd = float(np.clip(gripper_cmd, 0.0, 1.0))
+        self.target = self.ee_pos.copy()
 
     def step(self, target_pos: np.ndarray, gripper: float) -> None:
         """One control tick: move the grasp site towards ``target_pos`` (clamped to the workspace) with

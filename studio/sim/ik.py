@@ -96,6 +96,10 @@ class PandaIK:
         q[self.ik_qadr] = self.home_q
         self.posture_task.set_target(q)
 
+    def sync(self, data: mujoco.MjData) -> None:
+        """Take over from a restored physics state: the joint command is what the actuators hold."""
+        self.q_cmd = data.ctrl[self.act_ids].copy()
+
     def command(self, data: mujoco.MjData, target: np.ndarray, dt: float) -> None:
         measured = data.qpos[self.sim_qadr]
         # If the arm is blocked (contact), re-anchor on the measured joints instead of winding up.
@@ -139,6 +143,10 @@ class SawyerMocap:
         self.cmd = self.home.copy()
         data.mocap_pos[self.mocap_id] = self.home
         data.mocap_quat[self.mocap_id] = _SAWYER_QUAT
+
+    def sync(self, data: mujoco.MjData) -> None:
+        """Take over from a restored physics state: the hand command is where the mocap body is."""
+        self.cmd = data.mocap_pos[self.mocap_id].copy()
 
     def command(self, data: mujoco.MjData, target: np.ndarray, dt: float) -> None:
         self.cmd = _rate_limit(self.cmd, np.asarray(target, dtype=np.float64), MAX_EE_SPEED * dt)

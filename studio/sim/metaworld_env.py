@@ -53,6 +53,7 @@ import numpy as np
 from studio.sim import rendering, robots
 from studio.sim.camera import CameraModel
 from studio.sim.metaworld_tasks import SCENE, MetaWorldTask, get_metaworld_task
+from studio.sim.physics_state import STATE_SPEC, check_states
 from studio.sim.scenes import SceneInfo
 
 #: Default image size of the external camera (the paper's Meta-World resolution).
@@ -237,6 +238,28 @@ class MetaWorldEnv:
         self._cur_obs = mw._get_curr_obs_combined_no_goal()
         self._prev_obs = self._cur_obs.copy()
         self._evaluate()
+
+    def restore(self, task: str | MetaWorldTask, seed: int, states: np.ndarray, gripper_cmd: float) -> None:
+        """Continue a recorded episode from its last tick (see :meth:`studio.sim.env.SimEnv.restore`): the
+        task is reset with ``seed``, each recorded integration state is set in turn so that the success
+        signals latch as they did, and the observation history follows the last two ticks."""
+        task = get_metaworld_task(task) if isinstance(task, str) else task
+        self._load(task)
+        check_states(self.model, states)
+        self.reset(task, seed)
+        m, d = self.model, self.data
+        for s in np.asarray(states, dtype=np.float64):
+            mujoco.mj_setState(m, d, s, STATE_SPEC)
+            mujoco.mj_forward(m, d)
+            self._prev_obs, self._cur_obs = self._cur_obs, self._mw._get_curr_obs_combined_no_goal()
+            self._evaluate()
+        # mj_forward rewrote the warm-start accelerations; the next step must start from the recorded ones.
+        mujoco.mj_setState(m, d, np.asarray(states[-1], dtype=np.float64), STATE_SPEC)
+        if len(states) == 1:
+            self._prev_obs = self._cur_obs.copy() if self._cur_obs is not None else None
+        self.steps = len(states) - 1
+        self.gripper_cmd = float(np.clip(gripper_cmd, 0.0, 1.0))
+        self.target = self.ee_pos.copy()
 
     def step(self, target_pos: np.ndarray, gripper: float) -> None:
         """One control tick: steer the hand towards ``target_pos`` (clamped to the task's mocap box) with

@@ -11,9 +11,8 @@ import mujoco
 import numpy as np
 
 from studio.sim.env import Simulator
+from studio.sim.physics_state import STATE_SPEC
 from studio.sim.recording import Recording
-
-_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 class Recorder:
@@ -23,12 +22,12 @@ class Recorder:
         self.env = env
         self.rows: list[dict] = []
         self.states: list[np.ndarray] = []
-        self._size = mujoco.mj_stateSize(env.model, _STATE)
+        self._size = mujoco.mj_stateSize(env.model, STATE_SPEC)
 
     def tick(self) -> None:
         self.rows.append(self.env.state())
         s = np.empty(self._size)
-        mujoco.mj_getState(self.env.model, self.env.data, s, _STATE)
+        mujoco.mj_getState(self.env.model, self.env.data, s, STATE_SPEC)
         self.states.append(s)
 
     def __len__(self) -> int:
@@ -47,14 +46,14 @@ class Recorder:
         if env.task is None or env.seed is None:
             raise RuntimeError("Recorder.finish: the env has no episode (reset it before recording)")
         keep = np.empty(self._size)
-        mujoco.mj_getState(env.model, env.data, keep, _STATE)
+        mujoco.mj_getState(env.model, env.data, keep, STATE_SPEC)
         steps = self.frame_steps(n_frames)
         frames = []
         for i in steps:
-            mujoco.mj_setState(env.model, env.data, self.states[i], _STATE)
+            mujoco.mj_setState(env.model, env.data, self.states[i], STATE_SPEC)
             mujoco.mj_forward(env.model, env.data)
             frames.append(env.render("external"))
-        mujoco.mj_setState(env.model, env.data, keep, _STATE)
+        mujoco.mj_setState(env.model, env.data, keep, STATE_SPEC)
         mujoco.mj_forward(env.model, env.data)
         arrays = {k: np.stack([np.asarray(r[k], dtype=np.float64) for r in self.rows]) for k in self.rows[0]}
         return Recording(

@@ -184,3 +184,30 @@ def test_waypoint_controller_presses_the_button(env):
 def test_stages_before_anything_happens(env):
     env.reset("metaworld/pick-place-wall-v3", 2)
     assert env.stages() == {"reached": False, "grasped": False, "placed": False}
+
+
+def test_restore_continues_an_episode_bit_for_bit(env):
+    from studio.sim.physics_state import STATE_SPEC, state_size
+    from studio.sim.recorder import Recorder
+
+    task = "metaworld/button-press-v3"
+    env.reset(task, 4)
+    rng = np.random.default_rng(0)
+    goal = env.ee_pos + np.array([0.0, 0.1, -0.1])
+    commands = [(goal + 0.02 * rng.standard_normal(3), float(i > 30)) for i in range(60)]
+    rec = Recorder(env)
+    rec.tick()
+    for c in commands:
+        env.step(*c)
+        rec.tick()
+    final_obs, final_stages = env.observation().copy(), env.stages()
+    k = 25
+    env.restore(task, 4, np.stack(rec.states[: k + 1]), gripper_cmd=rec.rows[k]["gripper_cmd"])
+    assert env.steps == k
+    now = np.empty(state_size(env.model))
+    for t in range(k, len(commands)):
+        env.step(*commands[t])
+        mujoco.mj_getState(env.model, env.data, now, STATE_SPEC)
+        np.testing.assert_array_equal(now, rec.states[t + 1], err_msg=f"tick {t + 1} differs")
+    np.testing.assert_array_equal(env.observation(), final_obs)
+    assert env.stages() == final_stages
