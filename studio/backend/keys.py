@@ -30,7 +30,7 @@ ROOT = "studio"
 
 _CHUNK = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 
-SESSION_LEAVES = ("ctl", "cmd", "poses", "frames", "status", "client")
+SESSION_LEAVES = ("ctl", "cmd", "poses", "frames", "status", "client", "draft")
 JOB_LEAVES = ("submit", "cancel", "status", "report", "progress", "artifacts", "poses", "result")
 WORKER_LEAVES = ("status", "assign", "cancel", "jobs")
 

@@ -107,8 +107,38 @@ class WorkerStatus(Message, frozen=True):
 
 
 # ---------------------------------------------------------------------------------------------- teleop requests
+class ForkStart(msgspec.Struct, frozen=True, array_like=True):
+    """A recorded episode a teleop session continues instead of starting fresh (see :class:`OpenSession`).
+
+    ``states`` (T, S) float64 are the episode's MuJoCo integration states from its reset to the tick it
+    continues from, ``arrays`` its recorded per-tick arrays over the same T ticks; the session restores the
+    last state exactly and records on from there, the T ticks included. ``gripper`` is the gripper command
+    in force at that tick, ``control_dt`` the episode's control period (the session steps at it, so the
+    recording keeps one rate). ``origin`` is stored with the saved episode as ``forked_from`` (e.g. the
+    rollout and step it was forked at).
+    """
+
+    draft: Id
+    states: ArrayData
+    arrays: dict[str, ArrayData]
+    gripper: Unit
+    control_dt: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)]
+    role: Role
+    origin: dict[str, Any] = {}
+
+    def __post_init__(self) -> None:
+        if self.states.dtype != "float64" or len(self.states.shape) != 2 or self.states.shape[0] < 1:
+            raise ValueError(f"ForkStart.states must be (T, S) float64 with T >= 1, got {self.states.dtype}"
+                             f"{list(self.states.shape)}")  # fmt: skip
+        for name, a in self.arrays.items():
+            if not a.shape or a.shape[0] != self.states.shape[0]:
+                raise ValueError(f"ForkStart.arrays[{name!r}] has {a.shape[:1]} ticks, states have "
+                                 f"{self.states.shape[0]}")  # fmt: skip
+
+
 class OpenSession(Message, frozen=True):
-    """Create (or re-create) the teleop session named by the key: a fresh scene reset to (task, seed)."""
+    """Create (or re-create) the teleop session named by the key: a fresh scene reset to (task, seed), or,
+    with ``fork``, that episode restored at its last recorded tick and recording on from there."""
 
     scene: Name
     robot: Name
@@ -116,6 +146,7 @@ class OpenSession(Message, frozen=True):
     seed: Seed
     image_height: Pixels = 240
     image_width: Pixels = 320
+    fork: ForkStart | None = None
 
 
 class ResetSession(Message, frozen=True):
@@ -133,6 +164,9 @@ class StartRecording(Message, frozen=True):
 
     role: Role | None = None
     reset: bool = True
+    #: Journal the recording's ticks as :class:`DraftChunk` messages under this id, so a worker that dies
+    #: mid-recording loses nothing the client has received.
+    draft: Id | None = None
 
 
 class StopRecording(Message, frozen=True):
@@ -221,6 +255,7 @@ class EpisodeSaved(Message, frozen=True):
     frames: Count
     success: bool
     via: Literal["data-dir", "bus"]
+    draft: Id | None = None
 
 
 class EpisodeNotSaved(Message, frozen=True):
@@ -229,6 +264,7 @@ class EpisodeNotSaved(Message, frozen=True):
     session: Id
     reason: Text
     kept_at: Text
+    draft: Id | None = None
 
 
 class EeTarget(Message, frozen=True):
@@ -489,6 +525,30 @@ class ArrayData(msgspec.Struct, frozen=True, array_like=True):
         return (
             np.frombuffer(self.data, dtype=np.dtype(self.dtype).newbyteorder("<")).reshape(self.shape).copy()
         )
+
+
+class DraftChunk(Message, frozen=True):
+    """Ticks ``first_step`` … of a recording journaled under ``draft`` (on the session's ``draft`` key).
+
+    ``states`` (n, S) float64 MuJoCo integration states and ``arrays`` the recorded per-tick arrays of the
+    same n ticks. Chunks of one draft arrive in order and without gaps; a recording's last chunk is sent
+    before it is stored, so the draft then holds all of it.
+    """
+
+    session: Id
+    draft: Id
+    first_step: Count
+    states: ArrayData
+    arrays: dict[str, ArrayData]
+
+    def __post_init__(self) -> None:
+        if self.states.dtype != "float64" or len(self.states.shape) != 2 or self.states.shape[0] < 1:
+            raise ValueError(f"DraftChunk.states must be (n, S) float64 with n >= 1, got {self.states.dtype}"
+                             f"{list(self.states.shape)}")  # fmt: skip
+        for name, a in self.arrays.items():
+            if not a.shape or a.shape[0] != self.states.shape[0]:
+                raise ValueError(f"DraftChunk.arrays[{name!r}] has {a.shape[:1]} ticks, states have "
+                                 f"{self.states.shape[0]}")  # fmt: skip
 
 
 class RecordingPayload(Message, frozen=True):

@@ -451,6 +451,15 @@ class Catalog:
         d["success"] = int(d["success"])
         self._insert("rollouts", d)
 
+    def get_rollout(self, rollout_id: str) -> RolloutRecord | None:
+        rows = self._query("SELECT * FROM rollouts WHERE id = ?", (rollout_id,))
+        if not rows:
+            return None
+        d = dict(rows[0])
+        d["extra"] = json.loads(d.pop("extra_json"))
+        d["success"] = bool(d["success"])
+        return RolloutRecord(**d)
+
     def rollouts(
         self,
         task: str | None = None,

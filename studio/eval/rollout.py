@@ -10,7 +10,8 @@ This is where the model and the simulator meet (they never import each other). A
 
 Everything needed to inspect it afterwards is returned: the recording (frames + full-rate arrays), every
 plan (waypoints in world and camera frames, the predicted latent trajectory, planning time, the tick it
-started at) and the outcome with the stage at which it failed.
+started at), the outcome with the stage at which it failed, and the physics state of every tick, from which
+the rollout can be continued exactly (forked) at any moment.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
+from studio.data.forks import write_states
 from studio.sim.env import SimEnv
 from studio.sim.recorder import Recorder
 from studio.sim.recording import Recording
@@ -68,6 +70,8 @@ class RolloutOutcome:
     events: list[tuple[str, dict]] = field(default_factory=list)
     # The breakdown after each attempt (plan + execution): the outcome a smaller re-plan budget would have had.
     attempt_stages: list[dict[str, bool]] = field(default_factory=list)
+    #: (T, S) MuJoCo integration state of every tick (what forking the rollout at a tick restores).
+    states: np.ndarray | None = None
 
     @property
     def replans(self) -> int:
@@ -176,6 +180,7 @@ def run_rollout(
         duration_s=time.perf_counter() - started,
         events=events,
         attempt_stages=attempt_stages,
+        states=np.stack(recorder.states),
     )
 
 
@@ -221,6 +226,8 @@ def store_rollout(
         arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
         np.savez_compressed(tmp / "plans.npz", allow_pickle=False, **arrays)
         (tmp / "events.json").write_text(json.dumps(out.events, default=float))
+        if out.states is not None:
+            write_states(tmp, out.states)
         os.replace(tmp, folder)
         path = str(folder)
     record = RolloutRecord(
