@@ -14,7 +14,13 @@ Three threads per session, so that nothing slow ever delays physics:
   :class:`~studio.backend.messages.StreamFrames` and the frames of finished recordings, rendered on a
   second ``SimEnv`` (same scene, same task layout) set to a snapshot of the physics state.
 * **saver** — hands finished recordings to the store (a shared data directory or the bus); on failure
-  the recording is written to the worker's spool directory rather than lost.
+  the recording is written to the worker's spool directory rather than lost. It also sends the ticks of a
+  recording that has a *draft* id as :class:`~studio.backend.messages.DraftChunk` messages every
+  :data:`DRAFT_PERIOD_S` of simulated time, so a client holds them even if this worker dies mid-recording.
+
+A session opened with a :class:`~studio.backend.messages.ForkStart` continues a recorded episode (a rollout
+forked at a tick, or a draft whose worker died): its last physics state is restored exactly and the
+session is recording from there, the episode's earlier ticks included, at the episode's control period.
 """
 
 from __future__ import annotations
@@ -48,6 +54,8 @@ MIN_RECORDED_STEPS = 20
 FRAME_PERIOD_S = 0.1
 #: ... but never fewer than MIN_RECORDED_STEPS frames, nor more than this.
 MAX_RECORDED_FRAMES = 300
+#: A recording with a draft id sends its new ticks at least this often (simulated seconds).
+DRAFT_PERIOD_S = 0.1
 #: Default robot role of a teleop recording, by robot (the Sawyer demonstrates, the Panda is the agent).
 DEFAULT_ROLE: dict[str, msg.Role] = {"sawyer": "expert", "panda": "agent"}
 
@@ -115,6 +123,28 @@ class _FinishJob:
     success: bool
     role: msg.Role
     n_frames: int
+    extra: dict
+    draft: str | None
+
+
+@dataclass
+class _DraftSend:
+    draft: str
+    first_step: int
+    rows: list[dict]
+    states: list[np.ndarray]
+
+
+def _rows_from_arrays(arrays: dict[str, np.ndarray]) -> list[dict]:
+    """Recorded arrays (name -> (T, ...)) back to the per-tick rows a Recorder keeps."""
+    n = len(arrays["time"])
+    return [
+        {
+            k: (float(v[t]) if np.ndim(v[t]) == 0 else np.asarray(v[t], dtype=np.float64))
+            for k, v in arrays.items()
+        }
+        for t in range(n)
+    ]
 
 
 class TeleopSession:
@@ -141,10 +171,23 @@ class TeleopSession:
         self.spool_dir = spool_dir
         self.config = config
         size = (request.image_height, request.image_width)
+        fork = request.fork
+        self._control_dt = fork.control_dt if fork is not None else config.control_dt
         try:
             self.env = self._make_env(request.scene, request.robot, size)
-            self.env.reset(request.task, request.seed)
         except ValueError as e:
+            raise SessionError("bad_request", str(e)) from None
+        except Exception as e:  # a scene file that no longer loads: say which and why
+            raise SessionError("bad_request", f"scene {request.scene!r} with the {request.robot} does not load: "
+                               f"{type(e).__name__}: {e}") from None  # fmt: skip
+        try:
+            if fork is None:
+                self.env.reset(request.task, request.seed)
+            else:
+                self._check_fork(fork)
+                self.env.restore(request.task, request.seed, fork.states.to_array(), fork.gripper)
+        except ValueError as e:
+            self.env.close()
             raise SessionError("bad_request", str(e)) from None
         m = self.env.model
         max_w, max_h = int(m.vis.global_.offwidth), int(m.vis.global_.offheight)
@@ -165,13 +208,27 @@ class TeleopSession:
         self._seq = 0
         self._recorder: Recorder | None = None
         self._role: msg.Role = DEFAULT_ROLE.get(request.robot, "expert")
+        self._extra: dict = {}  # stored with the recording's episode
+        self._draft: str | None = None  # the recording's draft id
+        self._draft_sent = 0  # ticks of the recording already sent as draft chunks
+        self._draft_queue: collections.deque[_DraftSend] = collections.deque()
+        self._draft_cond = threading.Condition()
+        if fork is not None:
+            self._recorder = Recorder(self.env)
+            self._recorder.rows = _rows_from_arrays({k: v.to_array() for k, v in fork.arrays.items()})
+            self._recorder.states = list(fork.states.to_array())
+            self._role = fork.role
+            self._extra = {"forked_from": dict(fork.origin)} if fork.origin else {}
+            self._draft, self._draft_sent = fork.draft, len(self._recorder.states)
         self._saving = 0
         self._snapshot = self._take_snapshot()
 
         self._render_cond = threading.Condition()
         self._render_jobs: collections.deque[tuple[str, Any]] = collections.deque()
         self._stream: msg.StreamFrames | None = None
-        self._save_queue: collections.deque[tuple[Recording, msg.Role]] = collections.deque()
+        self._save_queue: collections.deque[tuple[Recording, msg.Role, dict, str | None]] = (
+            collections.deque()
+        )
         self._save_cond = threading.Condition()
 
         self._pose_pub = zsession.declare_publisher(
@@ -183,6 +240,7 @@ class TeleopSession:
         self._frame_pub = zsession.declare_publisher(
             keys.session_key(worker, session_id, "frames"), congestion_control=zenoh.CongestionControl.DROP
         )
+        self._draft_pub = zsession.declare_publisher(keys.session_key(worker, session_id, "draft"))
         self._status_pub = zsession.declare_publisher(keys.session_key(worker, session_id, "status"))
         self._cmd_sub = bus.declare_subscriber(
             zsession, keys.session_key(worker, session_id, "cmd"), self._on_cmd, msg.EeTarget
@@ -191,6 +249,7 @@ class TeleopSession:
             threading.Thread(target=self._sim_loop, name=f"sim-{session_id}", daemon=True),
             threading.Thread(target=self._render_loop, name=f"render-{session_id}", daemon=True),
             threading.Thread(target=self._save_loop, name=f"save-{session_id}", daemon=True),
+            threading.Thread(target=self._draft_loop, name=f"draft-{session_id}", daemon=True),
         ]
         for t in self._threads:
             t.start()
@@ -202,7 +261,20 @@ class TeleopSession:
         if scene == "metaworld":
             env: Simulator = make_env(scene, robot, image_size=size)
             return env
-        return SimEnv(scene, robot, image_size=size, control_dt=self.config.control_dt)
+        return SimEnv(scene, robot, image_size=size, control_dt=self._control_dt)
+
+    def _check_fork(self, fork: msg.ForkStart) -> None:
+        """Refuse a fork this session cannot continue as recorded, with the reason."""
+        if abs(self.env.control_dt - fork.control_dt) > 1e-9:
+            raise ValueError(
+                f"the episode was recorded at a control period of {fork.control_dt:g} s, this scene steps at "
+                f"{self.env.control_dt:g} s: it cannot be continued at its own rate"
+            )
+        from studio.sim.recording import ARRAY_FIELDS
+
+        missing = sorted(set(ARRAY_FIELDS) - set(fork.arrays))
+        if missing:
+            raise ValueError(f"the forked episode lacks the recorded arrays {missing}")
 
     def _describe_model(self) -> None:
         """Cameras and bodies of the current model (a Meta-World reset to another task changes the model)."""
@@ -367,7 +439,25 @@ class TeleopSession:
             env.step(env.target, env.gripper_cmd)
         if self._recorder is not None:
             self._recorder.tick()
+            if (
+                self._draft is not None
+                and (len(self._recorder) - self._draft_sent) * env.control_dt >= DRAFT_PERIOD_S
+            ):
+                self._queue_draft()
         self._publish_pose(-1 if cmd is None else cmd.seq)
+
+    def _queue_draft(self) -> None:
+        """Hand the recording's unsent ticks to the saver thread as one draft chunk (sim thread)."""
+        rec, draft = self._recorder, self._draft
+        if rec is None or draft is None or len(rec) <= self._draft_sent:
+            return
+        send = _DraftSend(
+            draft, self._draft_sent, rec.rows[self._draft_sent :], rec.states[self._draft_sent :]
+        )
+        self._draft_sent = len(rec)
+        with self._draft_cond:
+            self._draft_queue.append(send)
+            self._draft_cond.notify()
 
     def _publish_pose(self, ack_seq: int) -> None:
         env = self.env
@@ -398,7 +488,7 @@ class TeleopSession:
     def _reset(self, task: str | None, seed: int | None) -> msg.SessionInfo:
         note = ""
         if self._recorder is not None:
-            self._recorder = None
+            self._recorder, self._draft, self._extra = None, None, {}
             note = "the unsaved recording was discarded by the reset"
         current_task, current_seed = self._episode()
         try:
@@ -423,6 +513,8 @@ class TeleopSession:
         self._role = request.role or DEFAULT_ROLE.get(self.env.robot, "expert")
         self._recorder = Recorder(self.env)
         self._recorder.tick()
+        self._extra = {}
+        self._draft, self._draft_sent = request.draft, 0
         state = self.state("recording")
         self._publish_status(state)
         return state
@@ -443,6 +535,7 @@ class TeleopSession:
                 round(len(rec) * env.control_dt / FRAME_PERIOD_S), MIN_RECORDED_STEPS, MAX_RECORDED_FRAMES
             )
         )
+        self._queue_draft()  # the draft holds the whole recording before it is stored
         job = _FinishJob(
             rec.rows,
             rec.states,
@@ -451,8 +544,10 @@ class TeleopSession:
             bool(env.success() if success is None else success),
             self._role,
             n_frames,
+            dict(self._extra),
+            self._draft,
         )
-        self._recorder = None
+        self._recorder, self._draft, self._extra = None, None, {}
         with self._cond:
             self._saving += 1
         with self._render_cond:
@@ -465,7 +560,7 @@ class TeleopSession:
     def _discard_recording(self) -> msg.SessionState:
         if self._recorder is None:
             raise SessionError("conflict", "not recording")
-        self._recorder = None
+        self._recorder, self._draft, self._extra = None, None, {}
         state = self.state("recording discarded")
         self._publish_status(state)
         return state
@@ -533,7 +628,7 @@ class TeleopSession:
                         rec.rows, rec.states = finish.rows, finish.states
                         recording = rec.finish(n_frames=finish.n_frames, success=finish.success)
                         with self._save_cond:
-                            self._save_queue.append((recording, finish.role))
+                            self._save_queue.append((recording, finish.role, finish.extra, finish.draft))
                             self._save_cond.notify()
                     except Exception as e:
                         bus.log.exception("session %s: finishing a recording failed", self.id)
@@ -573,8 +668,8 @@ class TeleopSession:
                     if self._closed and not self._render_busy_with_finish():
                         return
                     self._save_cond.wait(0.5)
-                recording, role = self._save_queue.popleft()
-            extra = {"session": self.id, "worker": self.worker}
+                recording, role, more, draft = self._save_queue.popleft()
+            extra = {"session": self.id, "worker": self.worker, **more}
             try:
                 episode = self.destination.save(recording, role=role, source="teleop", extra=extra)
                 self._saving_done()
@@ -588,21 +683,47 @@ class TeleopSession:
                         frames=len(recording.frames),
                         success=bool(recording.success),
                         via=self.destination.via,
+                        draft=draft,
                     )
                 )
             except ShipError as e:
                 self._saving_done()
                 self._publish_status(
-                    msg.EpisodeNotSaved(session=self.id, reason=str(e), kept_at=str(e.kept_at))
+                    msg.EpisodeNotSaved(session=self.id, reason=str(e), kept_at=str(e.kept_at), draft=draft)
                 )
             except Exception as e:
                 bus.log.exception("session %s: storing a recording failed", self.id)
                 kept = self._rescue(recording, role, extra)
                 self._saving_done()
                 self._publish_status(
-                    msg.EpisodeNotSaved(session=self.id, reason=f"{type(e).__name__}: {e}", kept_at=kept)
+                    msg.EpisodeNotSaved(
+                        session=self.id, reason=f"{type(e).__name__}: {e}", kept_at=kept, draft=draft
+                    )
                 )
             self._publish_status(self.state())
+
+    def _draft_loop(self) -> None:
+        """Send queued draft chunks, in order (reliably: a chunk is never dropped for a newer one)."""
+        while True:
+            with self._draft_cond:
+                while not self._draft_queue:
+                    if self._closed:
+                        return
+                    self._draft_cond.wait(0.5)
+                send = self._draft_queue.popleft()
+            try:
+                fields = send.rows[0].keys()
+                chunk = msg.DraftChunk(
+                    session=self.id,
+                    draft=send.draft,
+                    first_step=send.first_step,
+                    states=msg.ArrayData.of(np.stack(send.states)),
+                    arrays={k: msg.ArrayData.of(np.stack([np.asarray(r[k], dtype=np.float64) for r in send.rows]))
+                            for k in fields},
+                )  # fmt: skip
+                self._draft_pub.put(msg.encode(chunk))
+            except (zenoh.ZError, ValueError) as e:
+                bus.log.error("session %s: a draft chunk could not be sent: %s", self.id, e)
 
     def _render_busy_with_finish(self) -> bool:
         with self._render_cond:
@@ -633,11 +754,13 @@ class TeleopSession:
             self._render_cond.notify_all()
         with self._save_cond:
             self._save_cond.notify_all()
+        with self._draft_cond:
+            self._draft_cond.notify_all()
         deadline = time.monotonic() + wait_s
         for t in self._threads:
             t.join(max(0.1, deadline - time.monotonic()))
         self._publish_status(self.state("closed"))
-        for entity in (self._cmd_sub, self._pose_pub, self._frame_pub, self._status_pub):
+        for entity in (self._cmd_sub, self._pose_pub, self._frame_pub, self._status_pub, self._draft_pub):
             try:
                 entity.undeclare()
             except zenoh.ZError:

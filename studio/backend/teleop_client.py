@@ -50,6 +50,7 @@ class TeleopClient:
         timeout: float = 10.0,
         on_pose: Callable[[msg.PoseFrame], None] | None = None,
         on_status: Callable[[msg.Message], None] | None = None,
+        on_draft: Callable[[msg.DraftChunk], None] | None = None,
     ):
         self.zsession = zsession
         self.worker = keys.check_chunk(worker, "worker id")
@@ -63,7 +64,7 @@ class TeleopClient:
         self.state = bus.Latest()
         self._events_cond = threading.Condition()
         self.episodes: list[msg.EpisodeSaved | msg.EpisodeNotSaved] = []
-        self._on_pose, self._on_status = on_pose, on_status
+        self._on_pose, self._on_status, self._on_draft = on_pose, on_status, on_draft
 
         key = lambda leaf: keys.session_key(self.worker, self.session_id, leaf)  # noqa: E731
         self._ctl_key = key("ctl")
@@ -83,6 +84,7 @@ class TeleopClient:
                 self._status,
                 (msg.SessionState, msg.EpisodeSaved, msg.EpisodeNotSaved),
             ),
+            bus.declare_subscriber(zsession, key("draft"), self._draft, msg.DraftChunk),
         ]
 
     # ------------------------------------------------------------------ streams
@@ -103,14 +105,28 @@ class TeleopClient:
         if self._on_status is not None:
             self._on_status(message)
 
+    def _draft(self, chunk: msg.DraftChunk, _sample: Any) -> None:
+        if self._on_draft is not None:
+            self._on_draft(chunk)
+
     def _request(self, request: msg.Message, expect: Any, timeout: float | None = None) -> Any:
         return bus.request(self.zsession, self._ctl_key, request, expect, timeout=timeout or self.timeout)
 
     # ------------------------------------------------------------------ session
     def open(
-        self, scene: str, robot: str, task: str, seed: int = 0, image_size: tuple[int, int] = (240, 320)
+        self,
+        scene: str,
+        robot: str,
+        task: str,
+        seed: int = 0,
+        image_size: tuple[int, int] = (240, 320),
+        fork: msg.ForkStart | None = None,
     ) -> msg.SessionInfo:
-        """Open (or re-open) the session; building the simulator takes about a second."""
+        """Open (or re-open) the session; building the simulator takes about a second.
+
+        With ``fork`` the session continues that recorded episode of (task, seed) from its last tick and is
+        recording (see :mod:`studio.backend.forking`).
+        """
         request = msg.OpenSession(
             scene=scene,
             robot=robot,
@@ -118,6 +134,7 @@ class TeleopClient:
             seed=seed,
             image_height=image_size[0],
             image_width=image_size[1],
+            fork=fork,
         )
         self.info = self._request(request, msg.SessionInfo, timeout=max(self.timeout, 30.0))
         return self.info
@@ -144,8 +161,11 @@ class TeleopClient:
         return self.poses.wait_until(lambda f: f.ack_seq >= seq, timeout)
 
     # ------------------------------------------------------------------ recording
-    def start_recording(self, role: msg.Role | None = None, reset: bool = True) -> msg.SessionState:
-        return self._request(msg.StartRecording(role=role, reset=reset), msg.SessionState)
+    def start_recording(
+        self, role: msg.Role | None = None, reset: bool = True, draft: str | None = None
+    ) -> msg.SessionState:
+        """Start recording; with ``draft`` the worker journals the ticks to this client as it goes."""
+        return self._request(msg.StartRecording(role=role, reset=reset, draft=draft), msg.SessionState)
 
     def discard_recording(self) -> msg.SessionState:
         return self._request(msg.DiscardRecording(), msg.SessionState)
