@@ -6,7 +6,7 @@ second; the studio appends them here, under ``<data-dir>/drafts/<draft-id>/``:
 * ``header.json`` — scene, robot, task, seed, control period, role, where the recording started from
   (``prefix``: the rollout and the number of its ticks a fork continues; none for a fresh recording) and
   ``forked_from`` for the saved episode;
-* ``chunk-<first step>.npz`` — ``states`` (n, S) float64 and one array per recorded field, n ticks each.
+* ``chunk-<first step>-<n>.npz`` — ``states`` (n, S) float64 and one array per recorded field, n ticks each.
 
 When the episode is stored the draft is deleted. When the worker died first, :meth:`RecordingDrafts.load`
 gives every tick received — the rollout prefix included — and a new session continues from the last one.
@@ -29,7 +29,7 @@ from studio.data.forks import fork_source
 
 DRAFTS_DIR = "drafts"
 HEADER = "header.json"
-_CHUNK = re.compile(r"^chunk-(\d{8})\.npz$")
+_CHUNK = re.compile(r"^chunk-(\d{8})-(\d{6})\.npz$")
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 
 
@@ -106,13 +106,14 @@ class RecordingDrafts:
         except json.JSONDecodeError as e:
             raise DraftError(f"draft {draft_id} has an unreadable header: {e}") from None
 
-    def _chunks(self, draft_id: str) -> list[tuple[int, Path]]:
+    def _chunks(self, draft_id: str) -> list[tuple[int, int, Path]]:
+        """(first tick, ticks, path) of every chunk, in order."""
         d = self._dir(draft_id)
         found = []
         for p in d.iterdir() if d.is_dir() else ():
             m = _CHUNK.match(p.name)
             if m:
-                found.append((int(m.group(1)), p))
+                found.append((int(m.group(1)), int(m.group(2)), p))
         return sorted(found)
 
     def prefix_steps(self, draft_id: str) -> int:
@@ -124,9 +125,8 @@ class RecordingDrafts:
         chunks = self._chunks(draft_id)
         if not chunks:
             return self.prefix_steps(draft_id)
-        first, path = chunks[-1]
-        with np.load(path, allow_pickle=False) as data:
-            return first + len(data["states"])
+        first, n, _ = chunks[-1]
+        return first + n
 
     def append(
         self, draft_id: str, first_step: int, states: np.ndarray, arrays: dict[str, np.ndarray]
@@ -149,7 +149,7 @@ class RecordingDrafts:
         if skip >= len(states):
             return 0
         payload = {"states": states[skip:], **{f"a_{k}": np.asarray(v)[skip:] for k, v in arrays.items()}}
-        path = self._dir(draft_id) / f"chunk-{expected:08d}.npz"
+        path = self._dir(draft_id) / f"chunk-{expected:08d}-{len(states) - skip:06d}.npz"
         _write_atomic(path, lambda f: np.savez(f, allow_pickle=False, **payload))
         return len(states) - skip
 
@@ -171,14 +171,10 @@ class RecordingDrafts:
                 chunks = self._chunks(d.name)
             except DraftError:
                 continue
-            steps = 0
-            for _, path in chunks:
-                try:
-                    with np.load(path, allow_pickle=False) as data:
-                        steps += len(data["states"])
-                except (OSError, ValueError, KeyError):
-                    break
-            updated = max([p.stat().st_mtime for _, p in chunks], default=float(header.get("created", 0.0)))
+            steps = sum(n for _, n, _ in chunks)
+            updated = max(
+                [p.stat().st_mtime for _, _, p in chunks], default=float(header.get("created", 0.0))
+            )
             out.append(DraftInfo(d.name, header, steps, updated))
         return sorted(out, key=lambda i: -i.updated)
 
@@ -196,7 +192,7 @@ class RecordingDrafts:
             src = fork_source(store, str(prefix["rollout"]), int(prefix["steps"]) - 1)
             parts_s.append(src.states)
             parts_a.append(src.arrays)
-        for _, path in self._chunks(draft_id):
+        for _, _, path in self._chunks(draft_id):
             with np.load(path, allow_pickle=False) as data:
                 parts_s.append(np.asarray(data["states"], dtype=np.float64))
                 parts_a.append({k[2:]: np.asarray(data[k]) for k in data.files if k.startswith("a_")})

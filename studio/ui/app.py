@@ -30,6 +30,7 @@ import viser
 from studio.backend import bus
 from studio.backend import messages as msg
 from studio.backend.hub import Hub
+from studio.data.drafts import RecordingDrafts
 from studio.ui.job_board import JobBoard
 from studio.ui.runs import RunRegistry
 from studio.ui.scene_view import SceneView
@@ -282,6 +283,7 @@ class StudioApp:
                 self.embedded = start_embedded_workers(self.hub)
             self.jobs = JobBoard(self.hub.job_client)
             self.runs = RunRegistry(self.data_dir, policy_dir)
+            self.drafts = RecordingDrafts(self.data_dir)
             self.stats = TeleopStats()
             self.dataset_version = 0
             self._dataset_mark: tuple | None = None

@@ -73,3 +73,24 @@ def _alive(pid: int) -> bool:
             return f.read().split(") ")[1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def test_a_worker_that_dies_is_started_again_until_it_keeps_dying(hub, monkeypatch):
+    import studio.backend.embedded as embedded_module
+
+    monkeypatch.setattr(embedded_module, "MAX_RESTARTS", 1)
+    with start_embedded_workers(hub, sim=1, train=0) as embedded:
+        assert embedded.wait_ready(hub.directory, timeout=120)
+        (first,) = embedded.workers
+        embedded.processes[0].process.send_signal(signal.SIGKILL)
+        assert hub.directory.wait_for(
+            lambda ws: [w.worker for w in ws if w.status is not None] not in ([], [first]), 120
+        ), "no new sim worker"
+        (second,) = embedded.workers
+        assert second != first and [(k, d, n) for _, k, d, n in embedded.restarts] == [("sim", first, second)]
+        assert [w.kind for w in hub.directory.workers()] == ["sim"]
+        # A second death within the window is a crash loop: the worker is left dead, its log kept.
+        embedded.processes[0].process.send_signal(signal.SIGKILL)
+        assert hub.directory.wait_for(lambda ws: not ws, 30)
+        time.sleep(2.0)
+        assert embedded.workers == [second] and len(embedded.restarts) == 1

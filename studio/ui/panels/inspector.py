@@ -1,6 +1,11 @@
 """Rollout inspector: stored rollouts filtered by task, checkpoint and outcome (failures first, with the stage
 they failed at); one replayed with a timeline — scene poses, the camera frame at that moment, the active
-plan's waypoints, and the predicted latent image beside the actual frame when the checkpoint has a decoder."""
+plan's waypoints, and the predicted latent image beside the actual frame when the checkpoint has a decoder.
+
+*Fork at this step* restores the simulator exactly as the rollout had it at the timeline's step in this
+tab's teleop session (:mod:`studio.backend.forking`), recording: drag the correction, then save it as a
+new demonstration (expert) or agent episode of the task, linked to the rollout (``forked_from``). The
+episodes forked from a rollout are listed when it is opened."""
 
 from __future__ import annotations
 
@@ -9,12 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.backend.messages import Role
 from studio.ui.images import side_by_side, thumbnail
 from studio.ui.timeline import Timeline
 
 HINT = """Every rollout (from *Imitate* or `studio eval`) is stored. Filter them, **Open** one and drag the
 timeline: the scene, the camera frame and the plan in force at that moment follow. Failures come first,
-with the stage they failed at."""
+with the stage they failed at. **Fork at this step** continues the rollout from that moment in a teleop
+session: drag the correction and save it as a new episode of the task."""
+FORKING = "**● Recording the fork** — drag the gizmo in the scene, then save it (or discard it)."
+ROLES: dict[str, Role] = {"agent episode (Panda trajectory)": "agent", "expert demonstration": "expert"}
 
 ALL = "(all)"
 OUTCOMES = (ALL, "failures", "successes")
@@ -49,6 +58,21 @@ class InspectorPanel:
         self.image = gui.add_image(np.full((120, 160, 3), 255, np.uint8), label="Camera", visible=False)
         self.timeline = Timeline(gui, "Step", self._show_step, fps=30.0)
         self.plan_info = gui.add_markdown("")
+        with gui.add_folder("Fork from this moment", visible=False) as self.fork_folder:
+            self.fork_role = gui.add_dropdown("Save as", tuple(ROLES), initial_value=next(iter(ROLES)))
+            self.fork_button = gui.add_button("Fork at this step", icon="git-fork",
+                                              hint="restore the simulator at the timeline's step and record a correction")  # fmt: skip
+            self.fork_status = gui.add_markdown("")
+            self.fork_grip = gui.add_button_group("Fork gripper", ("Open", "Close"), visible=False)
+            self.fork_save = gui.add_button("Stop & save the fork", icon="device-floppy", visible=False)
+            self.fork_discard = gui.add_button("Discard the fork", icon="x", visible=False)
+        self.fork_button.on_click(lambda _: tab.run(self.fork_here, "forking the rollout"))
+        self.fork_grip.on_click(lambda e: tab.teleop.set_gripper(1.0 if e.target.value == "Close" else 0.0))
+        self.fork_save.on_click(lambda _: tab.run(tab.teleop.stop_and_save, "saving the episode"))
+        self.fork_discard.on_click(
+            lambda _: tab.run(tab.teleop.discard_recording, "discarding the recording")
+        )
+        self._forking = False
         for dd in (self.task, self.checkpoint, self.outcome):
             dd.on_update(lambda e: self._fill_rollouts())
         self.open_button.on_click(lambda _: tab.run(self.open_selected, "opening the rollout"))
@@ -70,6 +94,15 @@ class InspectorPanel:
             self.rollout.options = options
 
     def refresh(self) -> None:
+        forking = self.tab.teleop.is_recording_fork_of(self.record.id if self.record is not None else None)
+        if forking != self._forking:
+            self._forking = forking
+            for w in (self.fork_grip, self.fork_save, self.fork_discard):
+                w.visible = forking
+            if forking:
+                self.fork_status.content = FORKING
+            if not forking and self.record is not None:
+                self._show_forks()
         if self.app.dataset_version == self._version:
             return
         self._version = self.app.dataset_version
@@ -100,8 +133,15 @@ class InspectorPanel:
         r = found[0]
         if r.episode_id is None:
             raise ValueError(f"rollout {rollout_id} was stored without its recording (eval --no-keep)")
+        try:
+            replay = EpisodeReplay(store, r.episode_id)
+        except Exception as e:
+            raise ValueError(
+                f"rollout {rollout_id} ({r.task}) cannot be replayed: its scene does not load here "
+                f"({type(e).__name__}: {e})"
+            ) from None
         self.record = r
-        self.replay = EpisodeReplay(store, r.episode_id)
+        self.replay = replay
         self.frames = store.load_frames(r.episode_id)
         self.plans = {}
         self.latents = {}
@@ -141,7 +181,51 @@ class InspectorPanel:
             f"executed, {r.num_steps} steps. Stages: {reached or '—'}.{note}"
         )
         self.image.visible = True
+        self.fork_folder.visible = True
+        self._show_forks()
         self.timeline.reset(self.replay.num_steps, fps=min(30.0, 1.0 / max(meta.control_dt or 0.02, 1e-3)))
+
+    # ------------------------------------------------------------------ forking
+    def fork_here(self) -> None:
+        """Continue the open rollout from the timeline's step in this tab's teleop session, recording."""
+        from studio.backend.forking import fork_rollout
+
+        r = self.record
+        if r is None or self.replay is None:
+            raise ValueError("open a rollout first, then pick the moment to fork at on its timeline")
+        step = int(self.timeline.slider.value)
+        role = ROLES[self.fork_role.value]
+        go = fork_rollout(self.app.store, self.app.drafts, r.id, step, role)
+        self.fork_status.content = f"Restoring rollout `{r.id}` at step {step}…"
+        try:
+            self.tab.teleop.continue_episode(go, f"rollout `{r.id}` from step {step}")
+        except BaseException:
+            self.app.drafts.discard(go.fork.draft)
+            self.fork_status.content = ""
+            raise
+        self.fork_status.content = f"Forked `{r.id}` at step {step} of {self.replay.num_steps - 1}. {FORKING}"
+
+    def _show_forks(self) -> None:
+        r = self.record
+        if r is None:
+            return
+        forks = [
+            m
+            for m in self.app.store.episodes(task=r.task, newest_first=True, limit=500)
+            if isinstance(m.extra, dict) and (m.extra.get("forked_from") or {}).get("rollout") == r.id
+        ]
+        listed = "; ".join(
+            f"`{m.id}` ({m.role}, from step {m.extra['forked_from'].get('step')}, "
+            f"{'✔' if m.success else '✘'})"
+            for m in forks[:5]
+        )
+        text = (
+            f"Episodes forked from this rollout: {listed}."
+            if forks
+            else "No episode was forked from this rollout yet."
+        )
+        if not self._forking:
+            self.fork_status.content = text
 
     @property
     def n_plans(self) -> int:

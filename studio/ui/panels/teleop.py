@@ -5,6 +5,12 @@ end-effector targets (latest wins; IK runs on the worker), the worker streams bo
 control rate and camera images at a few hertz. Recording, stopping (with the user's success verdict,
 pre-filled from the task's predicate) and discarding are requests to the session; the worker stores the
 episode and reports where it went.
+
+Every recording is journaled as a draft (``<data-dir>/drafts``, :mod:`studio.backend.forking`) while it
+runs. If the sim worker dies mid-recording, the panel reopens the session on the next sim worker as a
+continuation of the draft, still recording; a draft left by a studio that stopped can be resumed or dropped
+from *Interrupted recordings*. A rollout forked in *Inspect* arrives here the same way: the session
+continues it from the chosen tick and is recording.
 """
 
 from __future__ import annotations
@@ -16,7 +22,10 @@ import numpy as np
 
 from studio.backend import bus
 from studio.backend import messages as msg
+from studio.backend.forking import Continuation, DraftKeeper, new_draft_id, resume_draft
+from studio.backend.teleop import DEFAULT_ROLE
 from studio.backend.teleop_client import TeleopClient, choose_sim_worker
+from studio.data.drafts import DraftError
 from studio.sim.tasks import list_tasks
 
 HINTS = """**Drag the gizmo** at the gripper to move the arm (IK runs on the sim worker);
@@ -59,6 +68,11 @@ class TeleopPanel:
         self._token = 0
         self.drags = 0
         self._lost = False
+        self._draft: str | None = None  # the draft of the recording in progress
+        self._resume: str | None = None  # a draft to continue when the session is (re)opened
+        self._fork_note = ""  # what the recording in progress continues, for the status line
+        self._fork_origin: dict = {}  # the rollout (and step) the recording in progress was forked from
+        self.keeper = DraftKeeper(self.app.drafts)
         self._streaming = False
         gui = tab.client.gui
         gui.add_markdown(HINTS)
@@ -82,6 +96,11 @@ class TeleopPanel:
                                         hint="pre-filled by the task's success check; tick or untick to override")  # fmt: skip
         self.preview = gui.add_image(np.zeros((*PREVIEW_SIZE, 3), np.uint8), label="External camera (live)")
         self.status = gui.add_markdown("Waiting for a sim worker…")
+        with gui.add_folder(
+            "Interrupted recordings", expand_by_default=False, visible=False
+        ) as self.drafts_folder:
+            self.draft_list = gui.add_dropdown("Draft", ("(none)",))
+            self.draft_buttons = gui.add_button_group("Draft action", ("Resume", "Drop"))
         with gui.add_folder("Episodes of this task", expand_by_default=False):
             self.episode_list = gui.add_dropdown("Episode", ("(none)",))
             self.delete_selected = gui.add_button("Delete selected episode…", icon="trash")
@@ -101,6 +120,8 @@ class TeleopPanel:
         self.success.on_update(self._on_success)
         self.delete_selected.on_click(lambda _: self._confirm_delete(selected=True))
         self.delete_last.on_click(lambda _: self._confirm_delete(selected=False))
+        self.draft_buttons.on_click(self._on_draft_button)
+        self._drafts_shown: tuple = ()
         self._preview_thread = threading.Thread(target=self._preview_loop, daemon=True, name="teleop-preview")
 
     # ------------------------------------------------------------------ session
@@ -131,7 +152,12 @@ class TeleopPanel:
         """(Re-)open the session with the chosen scene, robot, task and seed."""
         if self.client is None:
             worker = choose_sim_worker(self.app.hub.directory)
-            self.client = TeleopClient(self.app.hub.session, worker, on_pose=self._on_pose, timeout=10.0)
+            self.client = TeleopClient(
+                self.app.hub.session, worker, on_pose=self._on_pose, on_draft=self.keeper, timeout=10.0
+            )
+        if self._resume is not None:
+            draft, self._resume = self._resume, None
+            return self.resume(draft)
         scene, robot, task, seed = self.scene.value, self.robot.value, self.task.value, int(self.seed.value)
         self.status.content = f"Opening **{task}** with the **{robot}** on `{self.client.worker}`…"
         if self.info is not None and (self.info.scene, self.info.robot) != (scene, robot):
@@ -144,6 +170,74 @@ class TeleopPanel:
         self.show_live()
         self.status.content = f"**{task}** with the **{robot}**, seed {seed} — ready. Drag the gizmo."
 
+    # ------------------------------------------------------------------ continuing episodes
+    def continue_episode(self, go: Continuation, what: str) -> None:
+        """Open the session as a continuation of a recorded episode (a fork or a draft), recording on."""
+        if self.client is None:
+            worker = choose_sim_worker(self.app.hub.directory)
+            self.client = TeleopClient(
+                self.app.hub.session, worker, on_pose=self._on_pose, on_draft=self.keeper, timeout=10.0
+            )
+        if self._recording:
+            self._drop_draft()
+            self.tab.notify(
+                "Recording discarded", "Continuing another episode discarded the unsaved recording."
+            )
+        self.status.content = f"Restoring {what} on `{self.client.worker}`…"
+        self.info = self.client.open(go.scene, go.robot, go.task, go.seed, fork=go.fork)
+        # Show what the session is (these widgets only reopen the session on a user's change).
+        if self.scene.value != go.scene:
+            self.scene.value = go.scene
+            self.narrow_choices()
+        self.robot.value, self.task.value, self.seed.value = go.robot, go.task, go.seed
+        self._draft, self._fork_note, self._fork_origin = go.fork.draft, what, dict(go.fork.origin)
+        self._recording = True
+        self._success_touched = False
+        self.success.value = False
+        self._streaming = False
+        self.show_live()
+        self._set_recording_ui(True)
+        self.status.content = (
+            f"Continuing {what} — {go.steps} ticks restored exactly, recording. Drag the gizmo to correct, "
+            "then **Stop & save** (or **Discard**)."
+        )
+
+    def is_recording_fork_of(self, rollout_id: str | None) -> bool:
+        """Whether this tab is recording a continuation of rollout ``rollout_id``."""
+        return rollout_id is not None and self._recording and self._fork_origin.get("rollout") == rollout_id
+
+    def resume(self, draft_id: str) -> None:
+        """Continue an interrupted recording from the last tick its draft holds."""
+        try:
+            go = resume_draft(self.app.store, self.app.drafts, draft_id)
+        except (DraftError, ValueError) as e:
+            self.tab.notify("Cannot resume the recording", str(e), error=True)
+            self.status.content = f"**Cannot resume** draft `{draft_id}`: {e}"
+            return self.open()
+        origin = go.fork.origin
+        what = f"the interrupted recording `{draft_id}`" + (
+            f" (forked from rollout `{origin['rollout']}` at step {origin['step']})"
+            if origin.get("rollout")
+            else ""
+        )
+        self.continue_episode(go, what)
+
+    def _drop_draft(self) -> None:
+        if self._draft is not None:
+            self.app.drafts.discard(self._draft)
+        self._draft, self._fork_note, self._fork_origin = None, "", {}
+
+    def _on_draft_button(self, event) -> None:
+        draft = self.draft_list.value.split(" ")[0]
+        if draft == "(none)":
+            return
+        if event.target.value == "Resume":
+            self.tab.run(lambda: self.resume(draft), "resuming the recording")
+        else:
+            self.app.drafts.discard(draft)
+            self._drafts_shown = ()
+            self.tab.notify("Draft dropped", draft)
+
     def reset(self) -> None:
         if self.client is None or self.info is None:
             return self.open()
@@ -151,6 +245,8 @@ class TeleopPanel:
         if self._recording:
             self.tab.notify("Recording discarded", "Resetting the scene discarded the unsaved recording.")
         self.info = self.client.reset(task, seed)
+        if self._recording:
+            self._drop_draft()
         self._recording = False
         self._set_recording_ui(False)
         self.show_live()
@@ -284,7 +380,20 @@ class TeleopPanel:
         if self.client is None:
             raise RuntimeError("no teleop session yet")
         self.show_live()
-        self.client.start_recording(reset=True)
+        if self._recording:
+            self._drop_draft()
+        info = self.info
+        assert info is not None  # a client has an open session
+        role = DEFAULT_ROLE.get(info.robot, "expert")
+        draft = new_draft_id()
+        self.app.drafts.create(draft, {"scene": info.scene, "robot": info.robot, "task": info.task, "seed": info.seed,
+                                       "control_dt": info.control_dt, "role": role})  # fmt: skip
+        try:
+            self.client.start_recording(role=role, reset=True, draft=draft)
+        except BaseException:
+            self.app.drafts.discard(draft)
+            raise
+        self._draft, self._fork_note, self._fork_origin = draft, "", {}
         self._recording = True
         self._success_touched = False
         self.success.value = False
@@ -320,9 +429,13 @@ class TeleopPanel:
         self._recording = False
         self._set_recording_ui(False)
         if isinstance(outcome, msg.EpisodeSaved):
+            if outcome.draft is not None:
+                self.app.drafts.discard(outcome.draft)  # the episode holds it now
+            what = f" (continues {self._fork_note})" if self._fork_note else ""
+            self._draft, self._fork_note, self._fork_origin = None, "", {}
             self.status.content = (
                 f"Saved `{outcome.episode}` — {outcome.steps} steps, {outcome.frames} frames, "
-                f"success={outcome.success}, {outcome.role}."
+                f"success={outcome.success}, {outcome.role}{what}."
             )
             self.tab.notify("Episode saved", f"{outcome.task}: {outcome.episode}")
             self.app.dataset_changed()
@@ -334,6 +447,7 @@ class TeleopPanel:
         if self.client is None or not self._recording:
             return
         self.client.discard_recording()
+        self._drop_draft()
         self._recording = False
         self._set_recording_ui(False)
         self.status.content = "Recording discarded."
@@ -420,6 +534,7 @@ class TeleopPanel:
                 self.rec_status.content = f"### ● REC {seconds:5.1f} s — {state.recorded_steps} steps"
                 if not self._success_touched and self.success.value != state.success:
                     self.success.value = bool(state.success)
+        self._refresh_drafts()
         if self.app.dataset_version != self._list_version or self.task.value != self._list_task:
             self._list_version, self._list_task = self.app.dataset_version, self.task.value
             metas = self.app.store.episodes(task=self.task.value, newest_first=True, limit=100)
@@ -430,8 +545,29 @@ class TeleopPanel:
             if self.episode_list.options != options:
                 self.episode_list.options = options
 
+    def _refresh_drafts(self) -> None:
+        """List drafts no session of this studio is writing (a recording interrupted by a stop of the studio)."""
+        live = {t.teleop._draft for t in list(self.app.tabs.values())} | {self._draft, self._resume}
+        shown = tuple(
+            f"{d.id} · {d.header.get('task')} · {d.steps} ticks"
+            + (" · fork" if d.header.get("prefix") else "")
+            for d in self.app.drafts.drafts()
+            if d.id not in live
+        )
+        if shown != self._drafts_shown:
+            self._drafts_shown = shown
+            self.draft_list.options = shown or ("(none)",)
+            self.drafts_folder.visible = bool(shown)
+
     def _drop_client(self) -> None:
         client, self.client, self.info = self.client, None, None
+        if self._recording and self._draft is not None:
+            # Nothing recorded is lost: the next session continues the draft, still recording.
+            self._resume, self._draft = self._draft, None
+            self.status.content = (
+                f"The sim worker was lost mid-recording; {self.keeper.kept.get(self._resume, 0)} ticks are "
+                "kept in the draft. Resuming on the next sim worker…"
+            )
         self._recording = False
         self._set_recording_ui(False)
         if client is not None:
