@@ -598,3 +598,100 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     _shot(page, shots / "imitate-plan-metaworld.png")
+
+
+@pytest.mark.slow
+def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(studio, page, shots):
+    """Inspect → fork the failed rollout before its misaimed grasp → drag the correction; the sim worker is killed
+    while the bar is held; the recording continues on the restarted worker → saved, linked to the rollout."""
+    import signal
+
+    from studio.sim.env import SimEnv
+    from studio.sim.experts import expert_waypoints
+
+    tab = _tab(studio)
+    ins, tp = tab.inspector, tab.teleop
+    failed = studio.store.catalog.rollouts(success=False, checkpoint_id="fixture-run/best")[0]
+    _open_tab(page, "Inspect", "Every rollout")
+    ins.outcome.value = "failures"
+    ins.checkpoint.value = "fixture-run/best"
+    _wait(lambda: ins.rollout.options[0].startswith(failed.id), 10, "the failed rollout listed")
+    _click_until(page, page.get_by_role("button", name="Open", exact=True), "Stages:")
+    page.get_by_text("No episode was forked from this rollout yet").first.wait_for(timeout=30_000)
+    k = 40  # the arm is on its way to the misaimed grasp
+    ins.timeline.slider.value = k
+    _wait(lambda: f"Step {k} of" in ins.plan_info.content, 30, "the timeline to move")
+    before = {m.id for m in studio.store.episodes()}
+    _click_until(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
+    _wait(lambda: tp._recording and tab.mode == "teleop" and tp.info.robot == "panda", 60, "the fork session",
+          lambda: _teleop_state(tab))  # fmt: skip
+    assert (tp.info.task, tp.info.seed) == (failed.task, failed.seed)
+    first = tp.client.poses.wait_until(lambda f: f.body_count == len(tp.info.body_names) and f.step >= k, 10)
+    assert first is not None, "no pose of the forked scene"
+    np.testing.assert_allclose(
+        first.ee_pos, ins.replay.arrays["ee_pos_world"][k], atol=5e-3
+    )  # as the rollout was
+    _shot(page, shots / "fork-restored.png")
+
+    # The correction a person would drag: above the bar, down, grasp, up, over the blue target, down, release.
+    src = studio.store.catalog.get_rollout(failed.id)
+    with SimEnv("pick_place", "panda") as env:
+        from studio.data.forks import fork_source
+
+        fs = fork_source(studio.store, src.id, k)
+        env.restore(fs.task, fs.seed, fs.states, fs.gripper)
+        grasp, lift, carry, place, _ = expert_waypoints(env)
+
+    def drag(goal, seconds: float = 1.5) -> None:
+        """The gizmo dragged to ``goal``: it moves, and its callback sends each position (latest wins)."""
+        start = np.asarray(tp.client.latest_pose().ee_pos)
+        n = int(seconds * 60)
+        for i in range(1, n + 1):
+            p = start + (np.asarray(goal) - start) * i / n
+            tp.gizmo.position = p
+            tp.move_to(p)
+            time.sleep(1 / 60)
+        _wait(lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.01, 20,
+              f"the arm to reach {np.round(goal, 3)}", lambda: _teleop_state(tab))  # fmt: skip
+
+    drag(grasp[:3] + np.array([0.0, 0.0, 0.1]))
+    drag(grasp[:3], 1.0)
+    _click(page.get_by_role("button", name="Close", exact=True))
+    _wait(lambda: tp.client.latest_pose().gripper == 1.0, 10, "the gripper to close")
+    time.sleep(0.8)
+    drag(lift[:3])
+    held_steps = tp.client.state.get()[0].recorded_steps
+    # The sim worker dies while the bar is held.
+    (sim,) = [p for p in studio.embedded.processes if p.kind == "sim"]
+    sim.process.send_signal(signal.SIGKILL)
+    _wait(lambda: "The sim worker was lost mid-recording" in tp.status.content or tp.client is None, 60,
+          "the loss to be noticed", lambda: _teleop_state(tab))  # fmt: skip
+    _wait(lambda: tp._recording and tp.client is not None and tp.client.worker != sim.worker
+          and tp.status.content.startswith("Continuing the interrupted recording"), 180,
+          "the recording to continue on the restarted worker", lambda: _teleop_state(tab))  # fmt: skip
+    resumed = tp.client.state.wait_until(lambda s: s.recorded_steps > 0, 10).recorded_steps
+    assert held_steps - 10 <= resumed <= held_steps + 20, (held_steps, resumed)  # ≤ 0.1 s lost, none invented
+    ee = np.asarray(tp.client.latest_pose().ee_pos)
+    assert np.linalg.norm(ee - lift[:3]) < 0.02, "the arm is where it was when its worker died"
+    _open_tab(page, "Inspect", "Recording the fork")
+    _shot(page, shots / "fork-resumed.png", scroll_to="Fork from this moment")
+    drag(carry[:3], 2.0)
+    drag(place[:3], 1.0)
+    _click(page.get_by_role("button", name="Open", exact=True).last)
+    time.sleep(1.0)
+    drag(place[:3] + np.array([0.0, 0.0, 0.08]))
+    _wait(lambda: tp.success.value, 10, "the task's check to see the bar placed", lambda: _teleop_state(tab))
+    _click_until_done(page.get_by_role("button", name="Stop & save the fork"),
+                      lambda: _wait(lambda: tp.status.content.startswith("Saved"), 120, "the fork to be stored",
+                                    lambda: _teleop_state(tab)))  # fmt: skip
+    (new,) = [m for m in studio.store.episodes() if m.id not in before]
+    assert new.extra["forked_from"] == {"rollout": failed.id, "step": k, "episode": failed.episode_id}
+    assert (new.role, new.embodiment, new.task, new.seed, new.success) == ("agent", "panda", failed.task,
+                                                                             failed.seed, True)  # fmt: skip
+    _, _, arrays = studio.store.load_arrays(new.id)
+    _, _, rolled = studio.store.load_arrays(failed.episode_id)
+    np.testing.assert_array_equal(arrays["qpos"][: k + 1], rolled["qpos"][: k + 1])
+    assert np.all(np.diff(arrays["time"]) > 0) and new.num_steps > resumed
+    assert studio.drafts.drafts() == [], "the stored episode replaced its draft"
+    _wait(lambda: f"`{new.id}` (agent, from step {k}, ✔)" in ins.fork_status.content, 20, "the fork listed")
+    _shot(page, shots / "fork-saved.png")
