@@ -156,6 +156,29 @@ EXAMPLES: list[msg.Message] = [
     msg.EpisodeCommit(transfer="t1", count=2, sha256="0" * 64, role="agent", source="teleop"),
     msg.ChunkAck(transfer="t1", index=1),
     msg.EpisodeStored(transfer="t1", episode="e1"),
+    msg.OpenSession(
+        scene="pick_place",
+        robot="panda",
+        task="pick_place/bar->blue",
+        seed=5,
+        fork=msg.ForkStart(
+            draft="d-1",
+            states=msg.ArrayData.of(np.arange(6.0).reshape(2, 3)),
+            arrays={"time": msg.ArrayData.of(np.array([0.0, 0.02]))},
+            gripper=1.0,
+            control_dt=0.02,
+            role="agent",
+            origin={"rollout": "r-1", "step": 1},
+        ),
+    ),
+    msg.StartRecording(role="expert", reset=True, draft="d-2"),
+    msg.DraftChunk(
+        session="s1",
+        draft="d-2",
+        first_step=4,
+        states=msg.ArrayData.of(np.zeros((3, 5))),
+        arrays={"time": msg.ArrayData.of(np.array([0.04, 0.05, 0.06]))},
+    ),
 ]
 ENCODED = [msg.encode(m) for m in EXAMPLES]
 
@@ -209,6 +232,36 @@ def test_poses_and_images_are_compact_and_exact():
         (
             bytes([msg.PROTOCOL_VERSION]) + msgspec.msgpack.encode(["EpisodeChunk", "t", 5, 5, b""]),
             "not below",
+        ),
+        (  # a draft chunk whose arrays do not have one row per state
+            bytes([msg.PROTOCOL_VERSION])
+            + msgspec.msgpack.encode(
+                [
+                    "DraftChunk",
+                    "s1",
+                    "d-1",
+                    0,
+                    ["float64", [2, 1], bytes(16)],
+                    {"time": ["float64", [3], bytes(24)]},
+                ]
+            ),
+            "has",
+        ),
+        (  # a fork whose states are not float64
+            bytes([msg.PROTOCOL_VERSION])
+            + msgspec.msgpack.encode(
+                [
+                    "OpenSession",
+                    "pick_place",
+                    "panda",
+                    "t",
+                    0,
+                    240,
+                    320,
+                    ["d-1", ["float32", [1, 2], bytes(8)], {}, 0.0, 0.02, "agent", {}],
+                ]
+            ),
+            "float64",
         ),
     ],
 )
