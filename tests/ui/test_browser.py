@@ -695,3 +695,39 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     assert studio.drafts.drafts() == [], "the stored episode replaced its draft"
     _wait(lambda: f"`{new.id}` (agent, from step {k}, ✔)" in ins.fork_status.content, 20, "the fork listed")
     _shot(page, shots / "fork-saved.png")
+
+
+@pytest.mark.slow
+def test_a_rollout_whose_scene_no_longer_loads_says_so(studio, page, shots, monkeypatch):
+    import studio.sim.scenes as scenes
+    from studio.data.forks import STATES_FILE
+
+    tab = _tab(studio)
+    ins, tp = tab.inspector, tab.teleop
+    failed = studio.store.catalog.rollouts(success=False, checkpoint_id="fixture-run/best")[0]
+    _open_tab(page, "Inspect", "Every rollout")
+    ins.outcome.value = "failures"
+    ins.checkpoint.value = "fixture-run/best"
+    _wait(lambda: ins.rollout.options[0].startswith(failed.id), 10, "the failed rollout listed")
+
+    def gone(*args, **kwargs):
+        raise FileNotFoundError("scenes/pick_place.xml was removed")
+
+    with monkeypatch.context() as m:  # the scene file is gone: replaying needs it
+        m.setattr(scenes, "build_model", gone)
+        _click(page.get_by_role("button", name="Open", exact=True))
+        page.get_by_text("cannot be replayed: its scene does not load here").first.wait_for(timeout=60_000)
+    _shot(page, shots / "inspect-scene-gone.png")
+    # The scene loads again, but its model changed since the rollout: the fork is refused with the reason.
+    _click_until(page, page.get_by_role("button", name="Open", exact=True), "Stages:")
+    path = Path(failed.path) / STATES_FILE
+    kept = path.read_bytes()
+    try:
+        with np.load(path) as data:
+            np.savez_compressed(path, states=data["states"][:, :-2])
+        _click(page.get_by_role("button", name="Fork at this step"))
+        page.get_by_text("the scene changed since the episode was recorded").first.wait_for(timeout=60_000)
+    finally:
+        path.write_bytes(kept)
+    assert not tp._recording and studio.drafts.drafts() == [], "a refused fork leaves nothing behind"
+    _shot(page, shots / "fork-refused.png")
