@@ -155,8 +155,8 @@ class TrainPanel:
         try:
             self.app.runs.set_active(choice.id, scene)
         except SceneMismatch as e:  # said plainly, and the scene keeps its policy
-            self._refusal = (scene, f"✘ {e}: not chosen.")
-            self.tab.notify(f"Not the active policy for {scene}", str(e), error=True)
+            self._refusal = (scene, f"✘ Not chosen for {scene}: {e}.")
+            self.tab.notify(f"Not the active policy for {scene}", str(e).replace("`", ""), error=True)
         else:
             self._refusal = None
         self._refresh_checkpoints()
