@@ -1,13 +1,19 @@
-"""Training runs and checkpoints as the studio shows them, and which checkpoint is the active policy.
+"""Training runs and checkpoints as the studio shows them, and which checkpoint is the active policy of each scene.
 
 Runs started from the browser live in ``<data-dir>/runs/<job-id>/`` (the train job's run directory:
 ``config.json``, ``metrics.jsonl``, ``last.pt``, ``best.pt``). A policy shipped with the package is a
-checkpoint file under ``studio/policies/`` (or the file named by ``STUDIO_DEFAULT_POLICY``); when one
-exists it is the active policy until the user picks another. Without any checkpoint the Imitate panel
-falls back to the *oracle* planner, labelled as what it is: the execution ceiling, not the model.
+checkpoint file under ``studio/policies/`` (or the file named by ``STUDIO_DEFAULT_POLICY``).
 
-The user's choice is kept in ``<data-dir>/ui/active_checkpoint.json`` so that it survives restarts and is
-shared by every tab.
+Every checkpoint knows the scene it was trained on: the scene of the tasks recorded in the file itself
+(:func:`studio.model.checkpoint_info.checkpoint_scene`, read without torch), so it cannot drift from what the
+model learnt. The active policy is per scene: a task is planned with the user's choice for its scene if there is
+one (the oracle, or a checkpoint trained on that scene), else the first shipped policy of that scene by name, else
+the *oracle* planner, labelled as what it is: the execution ceiling, not the model. A checkpoint trained on one
+scene never plans another scene's task: choosing it for another scene is refused with the reason.
+
+The user's choices are kept in ``<data-dir>/ui/active_checkpoint.json`` (``{"scenes": {scene: id}, "id": the
+latest}``) so that they survive restarts and are shared by every tab. A file from before per-scene choices,
+``{"id": ...}``, is honoured for the scene its checkpoint was trained on (the oracle: for every scene).
 """
 
 from __future__ import annotations
@@ -21,12 +27,19 @@ from pathlib import Path
 import numpy as np
 
 from studio.data.paths import SHIPPED_POLICY_DIR, SHIPPED_RUN_ID, SHIPPED_RUN_NAME
+from studio.model.checkpoint_info import checkpoint_scene
 
 RUNS_DIR = "runs"
 ACTIVE_FILE = "ui/active_checkpoint.json"
 DEFAULT_POLICY_DIR = SHIPPED_POLICY_DIR
 DEFAULT_POLICY_ENV = "STUDIO_DEFAULT_POLICY"
 ORACLE = "oracle"
+#: The scene families the studio offers (Teleop, Train and Imitate list them in this order).
+SCENES = ("pick_place", "push", "metaworld")
+
+
+class SceneMismatch(ValueError):
+    """A checkpoint chosen for a scene it was not trained on (or whose scene cannot be told)."""
 
 
 @dataclass(frozen=True)
@@ -39,10 +52,25 @@ class Checkpoint:
     run_id: str | None = None
     step: int | None = None
     summary: str = ""  # a shipped policy's measured results in one line (``NAME.json``), shown beside it
+    scene: str | None = None  # the scene it was trained on (None: the oracle, or a file that does not say)
 
     @property
     def is_oracle(self) -> bool:
         return self.path == ORACLE
+
+    def plans(self, scene: str) -> bool:
+        """Whether this choice may plan ``scene``'s tasks: the oracle plans every scene, a checkpoint its own."""
+        return self.is_oracle or self.scene == scene
+
+
+def mismatch_reason(ck: Checkpoint, scene: str | None) -> str:
+    """Why ``ck`` does not plan ``scene``'s tasks (None: any scene's), for a checkpoint that does not."""
+    if ck.scene is None:
+        unknown = (
+            f"`{ck.id}` does not say which scene it was trained on (its file names no tasks of one scene)"
+        )
+        return f"{unknown}: it plans no {scene} task" if scene else f"{unknown}: it plans no scene's tasks"
+    return f"`{ck.id}` was trained on {ck.scene} tasks: it does not plan {scene} tasks"
 
 
 ORACLE_CHOICE = Checkpoint(
@@ -129,7 +157,9 @@ def _shipped(policy: Path) -> Checkpoint:
         summary = None
     summary = summary if isinstance(summary, str) else ""
     label = f"shipped policy {policy.stem}" + (f" — {summary}" if summary else "")
-    return Checkpoint(f"default/{policy.stem}", str(policy), label, summary=summary)
+    return Checkpoint(
+        f"default/{policy.stem}", str(policy), label, summary=summary, scene=checkpoint_scene(policy)
+    )
 
 
 class RunRegistry:
@@ -176,7 +206,9 @@ class RunRegistry:
             for name in ("best", "last"):
                 f = d / f"{name}.pt"
                 if f.is_file():
-                    cks.append(Checkpoint(f"{d.name}/{name}", str(f), f"run {d.name} — {name}.pt", d.name))
+                    scene = checkpoint_scene(f)
+                    label = f"run {d.name} — {name}.pt ({scene or 'scene unknown'})"
+                    cks.append(Checkpoint(f"{d.name}/{name}", str(f), label, d.name, scene=scene))
             preset = (d / "spec.json").is_file() and json.loads((d / "spec.json").read_text()).get("config")
             out.append(
                 RunInfo(
@@ -203,30 +235,69 @@ class RunRegistry:
         return [*cks, ORACLE_CHOICE]
 
     # ------------------------------------------------------------------ the active choice
-    def active(self) -> Checkpoint:
-        """The chosen checkpoint if it still exists, else the shipped policy, else the oracle."""
-        choices = {c.id: c for c in self.checkpoints()}
-        path = self.data_dir / ACTIVE_FILE
+    def chosen_ids(self) -> dict[str, str]:
+        """The user's choice of checkpoint id per scene, as stored (a file from before per-scene choices,
+        ``{"id": ...}``, counts for the scene its checkpoint was trained on, the oracle for every scene)."""
         try:
-            chosen = json.loads(path.read_text()).get("id")
-        except (FileNotFoundError, json.JSONDecodeError, AttributeError):
-            chosen = None
-        if chosen in choices:
-            return choices[chosen]
-        defaults = self.default_policies()
-        return defaults[0] if defaults else ORACLE_CHOICE
+            stored = json.loads((self.data_dir / ACTIVE_FILE).read_text())
+        except (FileNotFoundError, json.JSONDecodeError):
+            return {}
+        if not isinstance(stored, dict):
+            return {}
+        scenes = stored.get("scenes")
+        if isinstance(scenes, dict):
+            return {str(k): v for k, v in scenes.items() if isinstance(v, str)}
+        chosen = stored.get("id")
+        if not isinstance(chosen, str):
+            return {}
+        if chosen == ORACLE:
+            return dict.fromkeys(SCENES, ORACLE)
+        ck = next((c for c in self.checkpoints() if c.id == chosen), None)
+        return {ck.scene: chosen} if ck is not None and ck.scene is not None else {}
 
-    def set_active(self, checkpoint_id: str) -> Checkpoint:
+    def shipped_for(self, scene: str) -> Checkpoint | None:
+        """The first shipped policy (by name) trained on ``scene``."""
+        return next((c for c in self.default_policies() if c.scene == scene), None)
+
+    def active(self, scene: str) -> Checkpoint:
+        """The policy that plans ``scene``'s tasks: the user's choice for that scene if it still exists, else the
+        scene's shipped policy, else the oracle.
+
+        Raises :class:`SceneMismatch` when the user's choice for ``scene`` was trained on another scene: it is
+        not run, and not silently replaced either."""
+        choices = {c.id: c for c in self.checkpoints()}
+        chosen = choices.get(self.chosen_ids().get(scene, ""))
+        if chosen is not None:
+            if not chosen.plans(scene):
+                raise SceneMismatch(
+                    f"{mismatch_reason(chosen, scene)}; choose a policy for {scene} in Train (Scene: {scene})"
+                )
+            return chosen
+        return self.shipped_for(scene) or ORACLE_CHOICE
+
+    def set_active(self, checkpoint_id: str, scene: str | None = None) -> Checkpoint:
+        """Make ``checkpoint_id`` the active policy of ``scene`` (None: of the scene it was trained on; the
+        oracle, which has none, for every scene). Raises :class:`SceneMismatch` for a checkpoint trained on
+        another scene, ``KeyError`` for an unknown id."""
         choices = {c.id: c for c in self.checkpoints()}
         if checkpoint_id not in choices:
             raise KeyError(f"no checkpoint {checkpoint_id!r}; known: {sorted(choices)}")
+        ck = choices[checkpoint_id]
+        if scene is not None and not ck.plans(scene):
+            raise SceneMismatch(mismatch_reason(ck, scene))
+        if scene is None and not ck.is_oracle and ck.scene is None:
+            raise SceneMismatch(mismatch_reason(ck, None))
+        scenes = (scene,) if scene is not None else (SCENES if ck.is_oracle else (str(ck.scene),))
         path = self.data_dir / ACTIVE_FILE
         with self._lock:
+            stored = self.chosen_ids()
+            stored.update(dict.fromkeys(scenes, checkpoint_id))
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_name(path.name + ".tmp")
-            tmp.write_text(json.dumps({"id": checkpoint_id}))
+            # "id" keeps the latest choice for a studio from before per-scene choices, which reads only that.
+            tmp.write_text(json.dumps({"scenes": stored, "id": checkpoint_id}, indent=1))
             os.replace(tmp, path)
-        return choices[checkpoint_id]
+        return ck
 
     # ------------------------------------------------------------------ the catalog's runs and checkpoints
     def register_run(self, catalog, run_id: str, *, status: str = "queued", scene: str | None = None,

@@ -1,4 +1,5 @@
-"""The policy shipped in ``studio/policies``: small enough, with its decoder, and plans a held-out task."""
+"""The policies shipped in ``studio/policies``: small enough, with their decoders, each planning a held-out task of
+the scene it was trained on (pick-and-place or push)."""
 
 from __future__ import annotations
 
@@ -10,10 +11,13 @@ from studio.cli import main
 from studio.data.paths import SHIPPED_POLICY_DIR
 from studio.data.splits import load_split
 from studio.data.store import EpisodeStore
+from studio.model.checkpoint_info import checkpoint_scene
 from studio.sim.env import WORKSPACE
 
 torch.set_num_threads(1)
 POLICIES = sorted(f for f in SHIPPED_POLICY_DIR.glob("*.pt") if not f.name.endswith(".decoder.pt"))
+PICK_PLACE = [p for p in POLICIES if checkpoint_scene(p) == "pick_place"]
+PUSH = [p for p in POLICIES if checkpoint_scene(p) == "push"]
 
 
 def test_a_policy_ships_with_its_decoder_and_within_the_size_limit():
@@ -21,6 +25,11 @@ def test_a_policy_ships_with_its_decoder_and_within_the_size_limit():
     for policy in POLICIES:
         assert policy.stat().st_size <= 25 * 2**20, f"{policy.name} is over 25 MB"
         assert policy.with_name(f"{policy.stem}.decoder.pt").is_file(), f"{policy.name} has no latent decoder"
+        assert policy.with_suffix(".json").is_file(), (
+            f"{policy.name} has no JSON file with its measured results"
+        )
+    assert PICK_PLACE and PUSH, "a pick-and-place and a push policy ship"
+    assert len(PICK_PLACE) + len(PUSH) == len(POLICIES), "every shipped policy names its scene (by its tasks)"
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +43,7 @@ def demos(tmp_path_factory):
         return {t: store.load_frames(store.episodes(task=t)[0].id) for t in tasks}
 
 
-@pytest.mark.parametrize("policy", POLICIES, ids=lambda p: p.stem)
+@pytest.mark.parametrize("policy", PICK_PLACE, ids=lambda p: p.stem)
 def test_the_shipped_policy_plans_a_held_out_task(policy, demos):
     from studio.model.planner import Planner
     from studio.sim.env import SimEnv
@@ -59,7 +68,7 @@ def test_the_shipped_policy_plans_a_held_out_task(policy, demos):
     assert np.linalg.norm(releases[0] - releases[1]) > 0.05, releases
 
 
-@pytest.mark.parametrize("policy", POLICIES, ids=lambda p: p.stem)
+@pytest.mark.parametrize("policy", PICK_PLACE, ids=lambda p: p.stem)
 def test_the_shipped_policy_grasps_the_demonstrated_object_wherever_it_lies(policy, demos):
     """Objects are shuffled in every scene, so one demonstration must lead to different grasp points in different
     scenes: the nearest object to the grasp is the demonstrated one (chance: one in four), not whatever lies where
@@ -84,3 +93,36 @@ def test_the_shipped_policy_grasps_the_demonstrated_object_wherever_it_lies(poli
                 grasps.append(grasp)
     assert sum(picked) >= 6, f"the demonstrated object was picked in {sum(picked)} of {len(picked)} scenes"
     assert np.ptp(np.array(grasps)[:, 0]) > 0.1, "the grasp point does not move with the scene"
+
+
+@pytest.mark.parametrize("policy", PUSH, ids=lambda p: p.stem)
+def test_the_shipped_push_policy_pushes_the_demonstrated_box_backward(policy, tmp_path):
+    """The unseen push task (blue box, backward) from one scripted Sawyer demonstration: in every scene (the boxes
+    swap slots) the push starts behind the blue box, not the red one, and moves it towards the robot (-y)."""
+    from studio.model.planner import Planner
+    from studio.sim.env import SimEnv
+
+    (task,) = load_split("push").test
+    assert task == "push/blue-backward"
+    assert main(["collect", "--scene", "push", "--robot", "sawyer", "--tasks", task, "--episodes", "1", "--seed", "5",
+                 "--data-dir", str(tmp_path), "--no-progress"]) == 0  # fmt: skip
+    with EpisodeStore(tmp_path) as store:
+        frames = store.load_frames(store.episodes(task=task)[0].id)
+    planner = Planner.load(policy)
+    assert {t.split("/")[0] for t in planner.tasks} == {"push"} and task not in planner.tasks, (
+        "never trained on it"
+    )
+    slots = set()
+    with SimEnv("push", "panda") as env:
+        for seed in range(200, 206):
+            env.reset(task, seed=seed)
+            cam = env.camera_model()
+            wps = planner.plan(frames, env.render(), cam.K, cam.T_world_cam).waypoints_world
+            assert wps.shape == (5, 4) and np.isfinite(wps).all()
+            poses = env.object_poses()
+            slots.add(poses["blue"][0] > poses["red"][0])
+            start = wps[1, :2]  # down behind the box
+            nearest = min(poses, key=lambda o: abs(poses[o][0] - start[0]))
+            assert nearest == "blue", f"seed {seed}: the push starts at x={start[0]:.3f}, boxes {poses}"
+            assert wps[2, 1] - start[1] < -0.1, f"seed {seed}: not a backward push: {wps[:, :3]}"
+    assert slots == {True, False}, "both slot orders were planned"

@@ -29,6 +29,7 @@ from studio.bench.ui import CHROMIUM, CHROMIUM_ARGS, WEBGL_ARGS
 THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window);
   window.requestAnimationFrame = (cb) => setTimeout(() => raf(cb), 200); })();"""
 HELD_OUT = "pick_place/bar->blue"
+PUSH_HELD_OUT = "push/blue-backward"
 TRAIN_TASKS = ("pick_place/cube->red", "pick_place/cube->green")
 TINY = [
     "model.image_size=[48, 64]", "model.n_expert_frames=4", "model.n_agent_frames=3", "model.encoder_stages=2",
@@ -407,7 +408,7 @@ def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
 def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
     tab = _tab(studio)
     im = tab.imitate
-    studio.runs.set_active("oracle")  # the execution ceiling, clearly labelled as such
+    studio.runs.set_active("oracle", "pick_place")  # the execution ceiling, clearly labelled as such
     _click(page.get_by_role("tab", name="Imitate"))
     label = HELD_OUT + " (held-out)"
     assert label in im.task.options
@@ -511,19 +512,19 @@ def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
     Execute finishes with an outcome recorded against it."""
     tab = _tab(studio)
     im = tab.imitate
-    shipped = studio.runs.default_policies()
-    assert shipped, "no shipped policy"
-    studio.runs.set_active(shipped[0].id)
+    policy = studio.runs.shipped_for("pick_place")
+    assert policy is not None, "no shipped pick-and-place policy"
+    studio.runs.set_active(policy.id)
     _click(page.get_by_role("tab", name="Imitate"))
-    _wait(lambda: shipped[0].id in im.policy.content, 20, "the shipped policy to be active")
-    assert shipped[0].summary and shipped[0].summary in im.policy.content, "its measured results are shown"
     im.task.value = HELD_OUT + " (held-out)"
+    _wait(lambda: policy.id in im.policy.content, 20, "the shipped policy to be active")
+    assert policy.summary and policy.summary in im.policy.content, "its measured results are shown"
     _click(page.get_by_role("button", name="Make a scripted demonstration"))
     page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
     before = im.plan_job
     _click(page.get_by_role("button", name="Plan", exact=True))
     job = _wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
-    assert job.spec["checkpoint"] == shipped[0].path
+    assert job.spec["checkpoint"] == policy.path
     _wait(lambda: job.result is not None and im.latent_strip.visible, 120, "the decoded latent trajectory")
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert job.result["latent_images"] == 5  # r_2 … r_6 of the shipped policy, decoded
@@ -536,7 +537,86 @@ def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
     result = _wait(lambda: im.rollout.result, 30, "the rollout's result")
     _shot(page, shots / "imitate-outcome-shipped.png")
     row = [r for r in studio.store.catalog.rollouts(task=HELD_OUT) if r.id == result["rollout_id"]]
-    assert row and row[0].checkpoint_id == shipped[0].id
+    assert row and row[0].checkpoint_id == policy.id
+
+
+@pytest.mark.slow
+def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
+    """A held-out push task in Imitate is planned and executed by the push policy shipped with the studio (its
+    scene's), whatever pick-and-place policy is active; in Train, choosing the pick-and-place policy for push is
+    refused with the reason and push keeps its policy."""
+    import re
+
+    tab = _tab(studio)
+    im, train = tab.imitate, tab.train
+    push = studio.runs.shipped_for("push")
+    assert push is not None and push.id == "default/push-cpu" and push.scene == "push"
+    assert "push" not in studio.runs.chosen_ids(), "no push policy was chosen: the shipped one plans push"
+    pick = studio.runs.shipped_for("pick_place")
+    studio.runs.set_active(pick.id)  # the pick-and-place choice must not leak into push
+
+    # Train: the active-policy choice is for the scene chosen there; another scene's policy is refused.
+    _open_tab(page, "Train", "Held out (never trained on)")
+    _click_until_done(page.get_by_role("combobox", name="Scene"),
+                      lambda: page.get_by_role("option", name="push", exact=True).wait_for(timeout=10_000))  # fmt: skip
+    _click(page.get_by_role("option", name="push", exact=True))
+    _wait(lambda: train.scene.value == "push" and "plans **push** tasks" in train.active_note.content, 20,
+          "the push policy in Train", lambda: train.active_note.content)  # fmt: skip
+    assert train.active.value == push.label and "(shipped)" in train.active_note.content
+    _click_until_done(page.get_by_role("combobox", name="Active policy"),
+                      lambda: page.get_by_role("option", name=re.compile(r"^shipped policy pick-place-cpu")).wait_for(
+                          timeout=10_000))  # fmt: skip
+    _click(page.get_by_role("option", name=re.compile(r"^shipped policy pick-place-cpu")))
+    _wait(lambda: "✘" in train.active_note.content, 20, "the refusal", lambda: train.active_note.content)
+    assert "`default/pick-place-cpu` was trained on pick_place tasks: it does not plan push tasks" in (
+        train.active_note.content
+    )
+    assert studio.runs.active("push").id == push.id and train.active.value == push.label, (
+        "push keeps its policy"
+    )
+    page.get_by_text("it does not plan push tasks").first.wait_for(timeout=30_000)
+    _shot(page, shots / "train-push-refused.png", scroll_to="it does not plan push tasks")
+
+    # Imitate: the policy line follows the selected task's scene.
+    _open_tab(page, "Imitate", "Choose a")
+    im.task.value = HELD_OUT + " (held-out)"
+    _wait(lambda: f"**pick_place** tasks: `{pick.id}`" in im.policy.content, 20, "the pick-and-place policy line",
+          lambda: im.policy.content)  # fmt: skip
+    im.task.value = PUSH_HELD_OUT + " (held-out)"
+    _wait(lambda: f"**push** tasks: `{push.id}`" in im.policy.content, 20, "the push policy line",
+          lambda: im.policy.content)  # fmt: skip
+    assert push.summary and push.summary in im.policy.content, "its measured results are shown"
+    page.get_by_text("default/push-cpu").first.wait_for(timeout=30_000)
+    im.seed.value = 3
+    before_demo = im.expert_job
+    _click(page.get_by_role("button", name="Make a scripted demonstration"))
+    _wait(lambda: im.expert_job is not before_demo and im.expert_job, 30, "the scripted demonstration job")
+    page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
+    demo = studio.store.get(im.demo_id())
+    assert (demo.task, demo.embodiment, demo.source) == (PUSH_HELD_OUT, "sawyer", "scripted")
+    before = im.plan_job
+    _click(page.get_by_role("button", name="Plan", exact=True))
+    job = _wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
+    assert job.spec["checkpoint"] == push.path and job.spec["task"] == PUSH_HELD_OUT
+    _wait(lambda: job.result is not None and im.latent_strip.visible, 120, "the decoded latent trajectory",
+          lambda: im.status.content)  # fmt: skip
+    page.get_by_text("Planned in").first.wait_for(timeout=60_000)
+    assert job.result["latent_images"] > 0 and im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
+    assert im.plan_wps[2, 1] - im.plan_wps[1, 1] < -0.1, f"a backward push: {im.plan_wps}"
+    time.sleep(1.0)  # let the browser draw the plan before the screenshot
+    _shot(page, shots / "imitate-push-plan.png", scroll_to="Policy for")
+    _shot(page, shots / "imitate-push-latents.png", scroll_to="Predicted latent trajectory")
+    im.speed.value = "as fast as possible"
+    _click(page.get_by_role("button", name="Execute", exact=True))
+    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
+    result = _wait(lambda: im.rollout.result, 30, "the rollout's result")
+    assert im.rollout.spec["checkpoint"] == push.path and im.rollout.spec["checkpoint_id"] == push.id
+    time.sleep(1.0)
+    _shot(page, shots / "imitate-push-outcome.png", scroll_to="Policy for")
+    assert result["success"] is True, result  # seeded: this scene and demonstration succeed
+    assert "✔ Success" in im.outcome.content
+    row = [r for r in studio.store.catalog.rollouts(task=PUSH_HELD_OUT) if r.id == result["rollout_id"]]
+    assert row and row[0].checkpoint_id == push.id
 
 
 @pytest.mark.slow
@@ -580,10 +660,12 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     _, _, arrays = studio.store.load_arrays(new.id)
     assert np.linalg.norm(arrays["ee_pos_world"][-1] - arrays["ee_pos_world"][0]) > 0.05
 
-    shipped = studio.runs.default_policies()
-    studio.runs.set_active(shipped[0].id)
     _open_tab(page, "Imitate", "Choose a")
     im.task.value = next(label for label, name in im.labels.items() if name == task)
+    # No Meta-World policy ships and none was chosen: the oracle plans it, labelled as the execution ceiling (the
+    # pick-and-place policy chosen earlier never plans another scene's task).
+    _wait(lambda: "**metaworld** tasks: **oracle — execution ceiling**" in im.policy.content, 20,
+          "the Meta-World policy line", lambda: im.policy.content)  # fmt: skip
     _wait(
         lambda: any(o.startswith(new.id) for o in im.demo.options),
         20,
@@ -594,6 +676,7 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     _click(page.get_by_role("button", name="Plan", exact=True))
     job = _wait(lambda: im.plan_job is not before_job and im.plan_job, 30, "a new plan job")
     assert job.spec["expert_episode_id"] == new.id and job.spec["robot"] == "sawyer"
+    assert job.spec["checkpoint"] == "oracle"
     _wait(lambda: job.result is not None, 120, "the plan on the Meta-World scene")
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()

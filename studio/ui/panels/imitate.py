@@ -9,7 +9,10 @@ Re-planning continues the same episode inside the rollout (``Re-plans`` allowed)
 failure runs the same episode again with one more re-plan (seeded, so the first attempts repeat exactly
 and the new plan continues from where they failed). Every tab sees a running rollout and can watch it.
 
-Without a trained checkpoint the oracle planner is used, labelled as the execution ceiling.
+Each task is planned and executed by the active policy of its scene (:meth:`studio.ui.runs.RunRegistry.active`):
+the user's choice for that scene, else the scene's shipped policy, else the oracle planner, labelled as the
+execution ceiling. The policy line names the policy of the selected task's scene; a checkpoint chosen for a scene
+it was not trained on is refused with the reason, never run.
 """
 
 from __future__ import annotations
@@ -22,12 +25,12 @@ from studio.backend.plan_job import expert_indices
 from studio.data.splits import load_split
 from studio.sim.tasks import list_tasks
 from studio.ui.images import filmstrip, thumbnail
+from studio.ui.runs import SCENES, Checkpoint, SceneMismatch
 
 HINT = """Choose a **task** (held-out ones were never trained on), a **demonstration** of it and a scene
 **seed**. **Plan** shows what the model sees and predicts; **Execute** runs it on the Franka Panda
 (the Sawyer in Meta-World) live in the scene. Record demonstrations in *Teleop*, upload them in *Upload*, or make a scripted one here."""
 
-SCENES = ("pick_place", "push", "metaworld")
 HELD_OUT = " (held-out)"
 SPEEDS = {"1× (real time)": 1.0, "0.5×": 0.5, "0.25×": 0.25, "as fast as possible": 0.0}
 _WAYPOINT = re.compile(r"waypoint (\d+) of (\d+)")
@@ -89,7 +92,7 @@ class ImitatePanel:
         self.latent_strip = gui.add_image(np.full((20, 100, 3), 255, np.uint8),
                                           label="Predicted latent trajectory (decoded)", visible=False)  # fmt: skip
         self.latent_note = gui.add_markdown("")
-        self.task.on_update(lambda e: self._fill_demos())
+        self.task.on_update(lambda e: (self._fill_demos(), self._show_policy()))
         self.scripted.on_click(lambda _: tab.run(self.make_scripted, "making a scripted demonstration"))
         buttons.on_click(self._on_button)
         self.watch.on_click(lambda _: tab.run(self._watch_other, "watching the rollout"))
@@ -98,6 +101,32 @@ class ImitatePanel:
     @property
     def task_name(self) -> str:
         return self.labels[self.task.value]
+
+    def policy_for(self, task: str) -> Checkpoint:
+        """The active policy of ``task``'s scene; raises ``SceneMismatch`` (a ``ValueError``, shown as a
+        notification) when the choice for that scene was trained on another one."""
+        return self.app.runs.active(task.split("/", 1)[0])
+
+    def policy_text(self, task: str) -> str:
+        """The policy line: which policy plans ``task`` (its scene's), and why that one."""
+        scene = task.split("/", 1)[0]
+        head = f"Policy for **{scene}** tasks:"
+        try:
+            ck = self.policy_for(task)
+        except SceneMismatch as e:
+            return f"{head} ✘ {e}. Plan and Execute refuse to run it."
+        chosen = self.app.runs.chosen_ids().get(scene) == ck.id
+        if ck.is_oracle:
+            why = "chosen in Train" if chosen else f"no policy for {scene} is shipped or chosen in Train"
+            return f"{head} **oracle — execution ceiling** (plans from the simulator's true state, not a model; {why})"
+        origin = " (chosen in Train)" if chosen else ""
+        return f"{head} `{ck.id}`{origin}" + (f" — {ck.summary}" if ck.summary else "")
+
+    def _show_policy(self) -> None:
+        text = self.policy_text(self.task_name)
+        if self._shown.get("policy") != text:
+            self._shown["policy"] = text
+            self.policy.content = text
 
     def _fill_demos(self) -> None:
         metas = self.app.store.episodes(task=self.task_name, role="expert", newest_first=True, limit=100)
@@ -151,7 +180,7 @@ class ImitatePanel:
 
     def plan(self):
         task, seed, demo = self.task_name, int(self.seed.value), self.demo_id()
-        ck = self.app.runs.active()
+        ck = self.policy_for(task)
         self._show_scene(task, seed, f"Plan for **{task}**, seed {seed}.")
         self.tab.view.clear_overlay("plan")
         self.latent_strip.visible = False  # the previous plan's images must not pass for this one's
@@ -199,7 +228,7 @@ class ImitatePanel:
 
     def execute(self):
         task, seed, demo = self.task_name, int(self.seed.value), self.demo_id()
-        ck = self.app.runs.active()
+        ck = self.policy_for(task)
         replans = int(self.replans.value)
         spec = {"checkpoint": ck.path, "checkpoint_id": ck.id, "expert_episode_id": demo, "task": task,
                 "seed": seed, "replans": replans, "robot": self._robot(task), "speed": SPEEDS[self.speed.value]}  # fmt: skip
@@ -260,16 +289,7 @@ class ImitatePanel:
         if self.app.dataset_version != self._demo_version:
             self._demo_version = self.app.dataset_version
             self._fill_demos()
-        ck = self.app.runs.active()
-        text = (
-            "Policy: **oracle — execution ceiling** (plans from the simulator's true state; no trained "
-            "checkpoint is active)"
-            if ck.is_oracle
-            else f"Policy: `{ck.id}`" + (f" — {ck.summary}" if ck.summary else "")
-        )
-        if self._shown.get("policy") != text:
-            self._shown["policy"] = text
-            self.policy.content = text
+        self._show_policy()
         self._refresh_expert_job()
         self._refresh_plan_job()
         self._refresh_rollout()

@@ -1,5 +1,5 @@
 """Train: choose a configuration and the training tasks, start a ``train`` job, follow its loss curves,
-progress and ETA, cancel it; list runs and checkpoints and choose the active policy.
+progress and ETA, cancel it; list runs and checkpoints and choose the active policy of the chosen scene.
 
 A run started here lives in ``<data-dir>/runs/<job-id>/`` (see :mod:`studio.ui.runs`); its task
 selection is written there as a split file (the scene's held-out tasks stay held out). Curves come from
@@ -21,14 +21,12 @@ import viser.uplot as uplot
 from studio.backend.jobs import new_job_id
 from studio.data.splits import load_split
 from studio.model.config import PRESETS, preset
-from studio.ui.runs import read_metrics
+from studio.ui.runs import SCENES, SceneMismatch, read_metrics
 
 HINT = """Pick a **configuration** (`cpu` trains in minutes on this machine, `paper` is the paper's model) and
 the **training tasks**; held-out tasks are never trained on. *Overrides* are `section.field=value`
 assignments separated by `;` (e.g. `train.batch_size=8; model.image_size=[96, 128]`). **Start** queues a
 job for a trainer; the curves update live, **Cancel** stops after a checkpoint."""
-
-SCENES = ("pick_place", "push", "metaworld")
 
 
 def _fmt_eta(seconds: float | None) -> str:
@@ -51,6 +49,7 @@ class TrainPanel:
         self.job_id: str | None = None
         self._task_boxes: dict[str, viser.GuiCheckboxHandle] = {}
         self._shown: dict[str, Any] = {}  # what is on screen: times, job ids, texts
+        self._refusal: tuple[str, str] | None = None  # (scene, why) of the last active-policy choice refused
         gui = tab.client.gui
         self.gui = gui
         gui.add_markdown(HINT)
@@ -85,10 +84,12 @@ class TrainPanel:
         )  # fmt: skip
         with gui.add_folder("Runs and checkpoints"):
             self.runs_table = gui.add_markdown("")
-            self.active = gui.add_dropdown("Active policy", ("oracle",), hint="used by Imitate")
+            self.active = gui.add_dropdown(
+                "Active policy", ("oracle",), hint="plans the Imitate tasks of the scene chosen above"
+            )
             self.active_note = gui.add_markdown("")
         self._fill_tasks()
-        self.scene.on_update(lambda e: e.client and self._fill_tasks())
+        self.scene.on_update(lambda e: e.client and (self._fill_tasks(), self._refresh_checkpoints()))
         self.start.on_click(lambda _: tab.run(self.start_training, "starting the training job"))
         self.cancel.on_click(lambda _: tab.run(self.cancel_training, "cancelling the training job"))
         self.active.on_update(self._on_active)
@@ -147,26 +148,48 @@ class TrainPanel:
     def _on_active(self, event) -> None:
         if event.client is None:
             return
+        scene = self.scene.value
         choice = {c.label: c for c in self.app.runs.checkpoints()}.get(self.active.value)
-        if choice is not None:
-            self.app.runs.set_active(choice.id)
-            self.active_note.content = self._active_text(choice)
+        if choice is None:
+            return
+        try:
+            self.app.runs.set_active(choice.id, scene)
+        except SceneMismatch as e:  # said plainly, and the scene keeps its policy
+            self._refusal = (scene, f"✘ Not chosen for {scene}: {e}.")
+            self.tab.notify(f"Not the active policy for {scene}", str(e).replace("`", ""), error=True)
+        else:
+            self._refusal = None
+        self._refresh_checkpoints()
 
-    @staticmethod
-    def _active_text(choice) -> str:
-        if choice.is_oracle:
-            return "Imitate uses the **oracle**: the execution ceiling, not a learned policy."
-        return f"Imitate uses `{choice.path}`."
+    def _active_text(self, scene: str) -> tuple[str | None, str]:
+        """The label the dropdown shows for ``scene`` (None: leave it) and the note below it."""
+        runs = self.app.runs
+        try:
+            active = runs.active(scene)
+        except SceneMismatch as e:
+            return None, f"✘ {e}. Imitate refuses to run it."
+        chosen = runs.chosen_ids().get(scene) == active.id
+        if active.is_oracle:
+            why = "chosen" if chosen else f"no policy for {scene} is shipped or chosen"
+            return active.label, (
+                f"Imitate plans **{scene}** tasks with the **oracle** ({why}): the execution ceiling, "
+                "not a learned policy."
+            )
+        origin = "chosen" if chosen else "shipped"
+        return active.label, f"Imitate plans **{scene}** tasks with `{active.path}` ({origin})."
 
     def _refresh_checkpoints(self) -> None:
-        choices = self.app.runs.checkpoints()
-        labels = tuple(c.label for c in choices)
-        active = self.app.runs.active()
+        scene = self.scene.value
+        labels = tuple(c.label for c in self.app.runs.checkpoints())
+        label, note = self._active_text(scene)
         if self.active.options != labels:
             self.active.options = labels
-        if self.active.value != active.label:
-            self.active.value = active.label
-        self.active_note.content = self._active_text(active)
+        if label is not None and self.active.value != label:
+            self.active.value = label
+        if self._refusal is not None and self._refusal[0] == scene:  # until the next choice
+            note = f"{self._refusal[1]} {note}"
+        if self.active_note.content != note:
+            self.active_note.content = note
 
     # ------------------------------------------------------------------ refresh
     def _current_job(self):

@@ -31,3 +31,40 @@ def test_task_labels_mark_the_held_out_tasks():
     assert labels["pick_place/cube->red"] == "pick_place/cube->red"
     assert labels["push/blue-backward" + HELD_OUT] == "push/blue-backward"
     assert list(labels).index("pick_place/bar->blue" + HELD_OUT) < list(labels).index("pick_place/cube->red")
+
+
+def test_the_imitate_policy_line_names_the_policy_of_the_tasks_scene(tmp_path):
+    import json
+    import pickle
+    import zipfile
+
+    from studio.ui.panels.imitate import ImitatePanel
+    from studio.ui.runs import RunRegistry
+
+    policies = tmp_path / "policies"
+    policies.mkdir()
+    for name, task in (("pick-place-cpu", "pick_place/cube->red"), ("push-cpu", "push/red-forward")):
+        with zipfile.ZipFile(policies / f"{name}.pt", "w") as zf:  # torch.save's layout, metadata only
+            zf.writestr(f"{name}/data.pkl", pickle.dumps({"tasks": [task]}))
+    (policies / "push-cpu.json").write_text('{"summary": "99 % on the unseen push task"}')
+    reg = RunRegistry(tmp_path / "data", policy_dir=policies)
+    panel = SimpleNamespace(app=SimpleNamespace(runs=reg))
+    panel.policy_for = lambda task: ImitatePanel.policy_for(panel, task)
+    line = lambda task: ImitatePanel.policy_text(panel, task)  # noqa: E731
+    assert line("push/blue-backward") == (
+        "Policy for **push** tasks: `default/push-cpu` — 99 % on the unseen push task"
+    )
+    assert line("pick_place/bar->blue") == "Policy for **pick_place** tasks: `default/pick-place-cpu`"
+    assert "**oracle — execution ceiling**" in line("metaworld/door-unlock-v3")
+    assert "no policy for metaworld is shipped or chosen" in line("metaworld/door-unlock-v3")
+    reg.set_active("oracle", "push")
+    assert "**oracle — execution ceiling**" in line("push/blue-backward") and "chosen in Train" in line(
+        "push/x"
+    )
+    active = tmp_path / "data" / "ui" / "active_checkpoint.json"
+    active.write_text(json.dumps({"scenes": {"push": "default/pick-place-cpu"}}))
+    assert line("push/blue-backward").startswith(
+        "Policy for **push** tasks: ✘ `default/pick-place-cpu` was trained on pick_place tasks: it does not plan "
+        "push tasks"
+    )
+    assert line("push/blue-backward").endswith("Plan and Execute refuse to run it.")
