@@ -31,3 +31,15 @@ def test_task_labels_mark_the_held_out_tasks():
     assert labels["pick_place/cube->red"] == "pick_place/cube->red"
     assert labels["push/blue-backward" + HELD_OUT] == "push/blue-backward"
     assert list(labels).index("pick_place/bar->blue" + HELD_OUT) < list(labels).index("pick_place/cube->red")
+
+
+def test_a_forked_episode_says_where_it_came_from():
+    from studio.ui.panels.datasets import forked_note
+
+    note = forked_note({"forked_from": {"rollout": "r-1", "step": 40, "episode": "e"}, "worker": "w"})
+    assert "rollout `r-1` at step 40" in note and "first 41 steps" in note
+    assert (
+        forked_note({"worker": "w"}) == ""
+        and forked_note(None) == ""
+        and forked_note({"forked_from": 3}) == ""
+    )
