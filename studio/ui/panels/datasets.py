@@ -36,6 +36,17 @@ def counts_table(metas) -> str:
     return "\n".join(rows)
 
 
+def forked_note(extra: dict | None) -> str:
+    """Where a forked episode came from, in one sentence (empty for other episodes)."""
+    origin = (extra or {}).get("forked_from") if isinstance(extra, dict) else None
+    if not isinstance(origin, dict) or "rollout" not in origin:
+        return ""
+    return (
+        f" Forked from rollout `{origin['rollout']}` at step {origin.get('step')}: its first "
+        f"{int(origin.get('step', 0)) + 1} steps are the rollout's."
+    )
+
+
 class DatasetsPanel:
     """The *Data* tab."""
 
@@ -88,6 +99,7 @@ class DatasetsPanel:
             f"`{meta.id}` — **{meta.task}**, {meta.role} by {meta.embodiment} ({meta.source}), seed {meta.seed}, "
             f"{meta.num_frames} frames at {meta.fps:.0f} fps, {meta.num_steps} steps, "
             f"success: {'yes' if meta.success else 'no' if meta.success is False else 'unknown'}."
+            + forked_note(meta.extra)
         )
         self.image.visible = True
         if meta.has_arrays and meta.seed is not None:

@@ -68,3 +68,15 @@ def test_the_imitate_policy_line_names_the_policy_of_the_tasks_scene(tmp_path):
         "push tasks"
     )
     assert line("push/blue-backward").endswith("Plan and Execute refuse to run it.")
+
+
+def test_a_forked_episode_says_where_it_came_from():
+    from studio.ui.panels.datasets import forked_note
+
+    note = forked_note({"forked_from": {"rollout": "r-1", "step": 40, "episode": "e"}, "worker": "w"})
+    assert "rollout `r-1` at step 40" in note and "first 41 steps" in note
+    assert (
+        forked_note({"worker": "w"}) == ""
+        and forked_note(None) == ""
+        and forked_note({"forked_from": 3}) == ""
+    )
