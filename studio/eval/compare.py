@@ -124,18 +124,44 @@ def totals_line(t: dict, label_a: str = "A", label_b: str = "B") -> str:
     )
 
 
-def render_markdown(rows: Sequence[CompareRow], label_a: str = "A", label_b: str = "B") -> str:
-    """The per-episode table (in the order given; see :func:`order_rows`) followed by the totals."""
-    lines = [
-        f"| task | # | seed | demonstration | A: {_cell(label_a)} | B: {_cell(label_b)} | difference |",
-        "| --- | ---: | ---: | --- | --- | --- | --- |",
-    ]
+def render_markdown(
+    rows: Sequence[CompareRow], label_a: str = "A", label_b: str = "B", *, compact: bool = False
+) -> str:
+    """The per-episode table (in the order given; see :func:`order_rows`) followed by the totals.
+
+    ``compact`` (for a narrow panel): task names without their scene, no index, the demonstration's id by its last
+    part, columns headed ``A`` and ``B``, no totals.
+    """
+    if compact:
+        lines = ["| task | seed | demo | A | B | difference |", "| --- | ---: | --- | --- | --- | --- |"]
+    else:
+        lines = [
+            f"| task | # | seed | demonstration | A: {_cell(label_a)} | B: {_cell(label_b)} | difference |",
+            "| --- | ---: | ---: | --- | --- | --- | --- |",
+        ]
     for r in rows:
         diff = f"**{r.difference}**" if r.differs else r.difference
-        lines.append(
-            f"| {r.task} | {r.index} | {r.seed} | `{r.expert_episode_id}` | {r.a.mark} | {r.b.mark} | {diff} |"
-        )
-    return "\n".join(lines) + "\n\n" + totals_line(totals(rows), label_a, label_b) + "\n"
+        if compact:
+            task, demo = r.task.split("/", 1)[-1], "…" + r.expert_episode_id.rsplit("-", 1)[-1]
+            lines.append(f"| {task} | {r.seed} | `{demo}` | {r.a.mark} | {r.b.mark} | {diff} |")
+        else:
+            lines.append(
+                f"| {r.task} | {r.index} | {r.seed} | `{r.expert_episode_id}` | {r.a.mark} | {r.b.mark} | {diff} |"
+            )
+    table = "\n".join(lines) + "\n"
+    return table if compact else table + "\n" + totals_line(totals(rows), label_a, label_b) + "\n"
+
+
+def stage_at(stage_ticks: dict | None, step: int) -> str | None:
+    """What a rollout was doing at control step ``step`` from the ticks it first reached each stage (a stored
+    rollout's ``extra["stage_ticks"]``): ``reaching``, ``grasping``, ``placing`` or ``placed``; None if unknown."""
+    if not stage_ticks:
+        return None
+    for stage, doing in (("reached", "reaching"), ("grasped", "grasping"), ("placed", "placing")):
+        tick = stage_ticks.get(stage)
+        if tick is None or step < int(tick):
+            return doing
+    return "placed"
 
 
 # ---------------------------------------------------------------------------------------------- stored rollouts

@@ -94,7 +94,9 @@ def test_a_cancelled_compare_ends_as_cancelled(hub, workers, root):
     client = JobClient(hub.session)
     job = client.submit("compare", {"a": "oracle", "b": "oracle", "tasks": [TASK], "episodes": 3, "seed": 2})
     with client.watch(job.job) as w:
-        w.wait(lambda w: w.progress is not None and w.progress.message.startswith("episode 1 of 3"), timeout=120)
+        w.wait(
+            lambda w: w.progress is not None and w.progress.message.startswith("episode 1 of 3"), timeout=120
+        )
         client.cancel(job.job, "changed my mind")
         final = w.wait(timeout=30)
     assert final.state == "cancelled" and w.result is None
