@@ -12,8 +12,10 @@ it is counted on the websocket, not on the screen).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -498,6 +500,8 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     """The Compare tab: the oracle (A) against a tiny untrained checkpoint (B) on two seeds of a training task —
     every episode differs (the untrained model reaches nothing) — then one seed opened: one timeline moves both
     camera frames and the scene, the shorter rollout holding its last frame."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
     tab = _tab(studio)
     cmp = tab.compare
     run = studio.data_dir / "runs" / "tiny-run"
@@ -515,6 +519,8 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     job = _wait(lambda: cmp.job, 30, "the compare job")
     _wait(lambda: job.progress is not None and "episode 1 of 2" in job.progress.message, 180, "episode 1 of 2",
           lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}")  # fmt: skip
+    with contextlib.suppress(PlaywrightTimeout):  # the page may already show the end: a screenshot is no test
+        page.get_by_text(re.compile(r"episode \d of 2")).first.wait_for(timeout=20_000)
     _shot(page, shots / "compare-running.png")
     _wait(lambda: "finished:" in cmp.status.content, 180, "the comparison to finish",
           lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}")  # fmt: skip

@@ -117,7 +117,9 @@ class ComparePanel:
         self._version = -1
         self._choices_at = -CHOICES_EVERY_S
         self._shown: dict[str, object] = {}
-        self._stored: dict[str, str] = {}
+        self._stored: dict[str, str] = {}  # description shown -> evaluation id
+        self._prefer: list[str] | None = None  # evaluation ids to select when the list is next filled
+        self._filled = False
         gui = tab.client.gui
         gui.add_markdown(HINT)
         self.ck_a = gui.add_dropdown("Checkpoint A", ("oracle",))
@@ -163,23 +165,31 @@ class ComparePanel:
 
     def _fill_checkpoints(self) -> None:
         ids = tuple(c.id for c in self.app.runs.checkpoints())
+        first = not self._filled
+        self._filled = True
         for k, dd in enumerate((self.ck_a, self.ck_b)):
             if dd.options != ids:
                 keep = dd.value
                 dd.options = ids
                 # A: the first (the active shipped policy); B: the next one, so a fresh tab compares two policies.
-                dd.value = keep if keep in ids and keep != "oracle" else ids[min(k, len(ids) - 1)]
+                dd.value = keep if keep in ids and not first else ids[min(k, len(ids) - 1)]
 
     def _fill_stored(self) -> None:
+        before = [self._stored.get(dd.value) for dd in (self.eval_a, self.eval_b)]
         evals = stored_evaluations(self.app.store.catalog)
         self._stored = {e.describe(): e.eval_id for e in evals}
+        label_of = {eval_id: label for label, eval_id in self._stored.items()}
         options = tuple(self._stored) or (NONE,)
+        # The comparison that just finished, else what was chosen, else the newest comparison's two sides (listed
+        # newest first: B's side, then A's).
+        wanted = self._prefer if self._prefer is not None else before
+        self._prefer = None
         for k, dd in enumerate((self.eval_a, self.eval_b)):
             if dd.options != options:
-                keep = dd.value
                 dd.options = options
-                # The newest comparison's two sides by default (listed newest first: B's side, then A's).
-                dd.value = keep if keep in options else options[min(1 - k, len(options) - 1)]
+            value = label_of.get(wanted[k] or "", options[min(1 - k, len(options) - 1)])
+            if dd.value != value:
+                dd.value = value
 
     def _on_button(self, event) -> None:
         if event.target.value == "Start":
@@ -331,6 +341,7 @@ class ComparePanel:
         r = job.result
         rows = [CompareRow.from_dict(d) for d in r["rows"]]
         self.show_rows(rows, (r["label_a"], r["label_b"]))
+        self._prefer = list(r["eval_ids"])
         self.status.content = (
             f"Comparison `{r['compare_id']}` finished: {len(rows)} episodes in {r['wall_s'] / 60:.1f} min; "
             f"stored as evaluations `{r['eval_ids'][0]}` (A) and `{r['eval_ids'][1]}` (B)."
