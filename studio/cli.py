@@ -31,6 +31,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "results": ("studio.eval.results", "held-out evaluations of one or more policies as a Markdown table"),
     "eval": ("studio.eval.evaluation", "imitation success on (unseen) tasks; every rollout stored"),
+    "compare": (
+        "studio.eval.compare",
+        "two checkpoints on the same seeded scenes and demonstrations: a per-seed table of differences",
+    ),
     "worker": ("studio.backend.worker", "run a sim or training worker that joins the studio's bus"),
     "hub": ("studio.backend.hub", "run the studio's bus, job queue and store without the browser UI"),
 }

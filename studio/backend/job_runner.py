@@ -66,6 +66,13 @@ JOB_KINDS: dict[str, JobKind] = {
         requeue_on_worker_loss=False,
         description="plan (not execute) one imitation; spec as rollout; writes <data>/plans/<job>.npz",
     ),
+    "compare": JobKind(
+        name="compare",
+        worker_kind="sim",
+        handler="studio.backend.compare_job:run_compare_job",
+        requeue_on_worker_loss=False,
+        description="two checkpoints on the same seeded episodes; spec: a, b, tasks, episodes, seed, replan",
+    ),
     "expert": JobKind(
         name="expert",
         worker_kind="sim",

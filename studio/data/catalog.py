@@ -207,6 +207,13 @@ _EPISODE_COLUMNS = (
 ).split()
 
 
+def _rollout(row: sqlite3.Row) -> RolloutRecord:
+    d = dict(row)
+    d["extra"] = json.loads(d.pop("extra_json"))
+    d["success"] = bool(d["success"])
+    return RolloutRecord(**d)
+
+
 def _bool_or_none(v):
     return None if v is None else bool(v)
 
@@ -451,15 +458,6 @@ class Catalog:
         d["success"] = int(d["success"])
         self._insert("rollouts", d)
 
-    def get_rollout(self, rollout_id: str) -> RolloutRecord | None:
-        rows = self._query("SELECT * FROM rollouts WHERE id = ?", (rollout_id,))
-        if not rows:
-            return None
-        d = dict(rows[0])
-        d["extra"] = json.loads(d.pop("extra_json"))
-        d["success"] = bool(d["success"])
-        return RolloutRecord(**d)
-
     def rollouts(
         self,
         task: str | None = None,
@@ -490,13 +488,12 @@ class Catalog:
         sql += " ORDER BY created DESC"
         if limit is not None:
             sql += f" LIMIT {int(limit)}"
-        out = []
-        for row in self._query(sql, params):
-            d = dict(row)
-            d["extra"] = json.loads(d.pop("extra_json"))
-            d["success"] = bool(d["success"])
-            out.append(RolloutRecord(**d))
-        return out
+        return [_rollout(row) for row in self._query(sql, params)]
+
+    def get_rollout(self, rollout_id: str) -> RolloutRecord | None:
+        """The rollout with this id, or None."""
+        rows = self._query("SELECT * FROM rollouts WHERE id = ?", (rollout_id,))
+        return _rollout(rows[0]) if rows else None
 
     def rollout_summary(self, checkpoint_id: str | None = None, eval_id: str | None = None) -> list[dict]:
         """Per (task, checkpoint): count, successes, success rate, failures by stage, mean replans and

@@ -5,6 +5,8 @@ task drawn (with a seed derived the same way) from the store's expert episodes �
 (Panda) imitates another embodiment as in the paper — one planning call, execution with grasp correction,
 and up to ``--replan`` re-plans inside the same episode. Rollouts run in parallel worker processes; each is
 stored (recording as an agent episode, plans and predicted latents in its folder) and indexed in the catalog.
+Every process plans on the same number of torch threads (``planners.PLANNING_THREADS``), so a rollout is the
+same bit for bit whatever ``--workers`` says.
 
 ``--checkpoint oracle`` plans from the simulator's true state instead of a model: the ceiling of the
 execution stack, reported as such.
@@ -18,7 +20,7 @@ import os
 import sys
 import time
 import uuid
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
@@ -36,6 +38,18 @@ class EvalJob:
     index: int
     env_seed: int
     expert_seed: int
+    #: The demonstration to imitate; None: drawn with ``expert_seed`` from the store's when the rollout runs.
+    expert_episode_id: str | None = None
+
+
+@dataclass
+class PolicyRun:
+    """One policy's share of a run of rollouts: what plans, and what its rollouts are stored under."""
+
+    checkpoint: str  # a checkpoint file, or "oracle"
+    checkpoint_id: str | None  # the catalog id (None for the oracle)
+    eval_id: str
+    extra: dict = field(default_factory=dict)  # added to each stored rollout's ``extra``
 
 
 @dataclass
@@ -69,40 +83,6 @@ def make_jobs(tasks: list[str], episodes: int, seed: int) -> list[EvalJob]:
     return jobs
 
 
-# ---------------------------------------------------------------------------------------------- worker side
-_W: dict = {}
-
-
-def _init_worker(checkpoint: str, data_dir: str, scene: str, robot: str, threads: int) -> None:
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    from studio.data.store import EpisodeStore
-    from studio.sim.env import make_env
-
-    _W["store"] = EpisodeStore(data_dir)
-    _W["env"] = make_env(scene, robot)
-    if checkpoint == "oracle":
-        from studio.eval.oracle import OraclePlanner
-
-        _W["planner"] = OraclePlanner(_W["env"])
-    else:
-        import torch
-
-        torch.set_num_threads(threads)
-        from studio.model.planner import Planner
-
-        _W["planner"] = Planner.load(checkpoint)
-    _W["checkpoint"] = checkpoint
-
-
-def _close_worker() -> None:
-    env, store = _W.pop("env", None), _W.pop("store", None)
-    _W.clear()
-    if env is not None:
-        env.close()
-    if store is not None:
-        store.close()
-
-
 def _expert_choices(store, task: str) -> list[str]:
     ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=("sawyer", "human"))]
     if not ids:
@@ -113,39 +93,176 @@ def _expert_choices(store, task: str) -> list[str]:
     return sorted(ids)
 
 
+def choose_demonstration(store, job: EvalJob) -> str:
+    """The demonstration ``job`` imitates: its own, or one drawn with its ``expert_seed`` from the store's expert
+    episodes of its task (Sawyer or human) as they are now — a demonstration recorded meanwhile changes the draw."""
+    if job.expert_episode_id is not None:
+        return job.expert_episode_id
+    choices = _expert_choices(store, job.task)
+    return choices[np.random.default_rng(job.expert_seed).integers(len(choices))]
+
+
+def with_demonstrations(store, jobs: list[EvalJob]) -> list[EvalJob]:
+    """``jobs`` with their demonstrations drawn now, once: rollouts of these jobs by several policies imitate the
+    same demonstrations even if the store gains episodes while they run."""
+    return [replace(j, expert_episode_id=choose_demonstration(store, j)) for j in jobs]
+
+
+# ---------------------------------------------------------------------------------------------- worker side
+_W: dict = {}
+
+
+def _init_worker(checkpoints: tuple[str, ...], data_dir: str, scene: str, robot: str) -> None:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from studio.data.store import EpisodeStore
+    from studio.sim.env import make_env
+
+    _W["store"] = EpisodeStore(data_dir)
+    _W["env"] = make_env(scene, robot)
+    _W["planners"] = {}
+    for checkpoint in dict.fromkeys(checkpoints):
+        if checkpoint == "oracle":
+            from studio.eval.oracle import OraclePlanner
+
+            _W["planners"][checkpoint] = OraclePlanner(_W["env"])
+        else:
+            from studio.eval.planners import use_planning_threads
+            from studio.model.planner import Planner
+
+            _W.setdefault("threads_before", use_planning_threads())
+            _W["planners"][checkpoint] = Planner.load(checkpoint)
+
+
+def _close_worker() -> None:
+    env, store = _W.pop("env", None), _W.pop("store", None)
+    threads = _W.pop("threads_before", None)
+    _W.clear()
+    if env is not None:
+        env.close()
+    if store is not None:
+        store.close()
+    if threads is not None:  # the caller's own process (one worker): leave torch as it was
+        import torch
+
+        torch.set_num_threads(threads)
+
+
 def _run_job(
-    job: EvalJob, replan: int, eval_id: str, checkpoint_id: str | None, keep: bool
+    job: EvalJob, policy: PolicyRun, replan: int, keep: bool, should_stop: Callable[[], bool] | None = None
 ) -> RolloutSummary:
     from studio.eval.latents import attach_latent_images
     from studio.eval.rollout import run_rollout, store_rollout
 
-    store, env, planner = _W["store"], _W["env"], _W["planner"]
-    choices = _expert_choices(store, job.task)
-    expert_id = choices[np.random.default_rng(job.expert_seed).integers(len(choices))]
+    store, env = _W["store"], _W["env"]
+    planner = _W["planners"][policy.checkpoint]
+    expert_id = choose_demonstration(store, job)
     expert_frames = store.load_frames(expert_id)
     if hasattr(planner, "clear_cache"):
         planner.clear_cache()
-    out = run_rollout(env, planner, expert_frames, job.task, job.env_seed, replans=replan)
-    if keep and _W["checkpoint"] != "oracle":
-        attach_latent_images(_W["checkpoint"], out.plans)
+    # When each stage was first reached, for viewers that follow the rollout step by step (read only: the
+    # simulator tracks its stages every tick anyway).
+    stage_ticks: dict[str, int | None] = dict.fromkeys(("reached", "grasped", "placed"))
+
+    def on_tick() -> None:
+        for k, v in env.stages().items():
+            if v and k in stage_ticks and stage_ticks[k] is None:
+                stage_ticks[k] = int(env.steps)
+
+    out = run_rollout(
+        env,
+        planner,
+        expert_frames,
+        job.task,
+        job.env_seed,
+        replans=replan,
+        on_tick=on_tick,
+        should_stop=should_stop,
+    )
+    if out.failure_stage == "cancelled":
+        raise InterruptedError("stopped before the rollout ended")
+    if keep and policy.checkpoint != "oracle":
+        attach_latent_images(policy.checkpoint, out.plans)
     record = store_rollout(
         store,
         out,
         expert_episode_id=expert_id,
-        checkpoint_id=checkpoint_id,
-        eval_id=eval_id,
+        checkpoint_id=policy.checkpoint_id,
+        eval_id=policy.eval_id,
         keep=keep,
-        extra={"index": job.index},
+        extra={"index": job.index, "stage_ticks": stage_ticks, **policy.extra},
     )
-    rollout_id = record.id
-    return RolloutSummary(rollout_id, job.task, job.index, job.env_seed, expert_id, out.success,
+    return RolloutSummary(record.id, job.task, job.index, job.env_seed, expert_id, out.success,
                           out.stages["reached"], out.stages["grasped"], out.stages["placed"], out.failure_stage,
                           out.replans, out.planning_time_s, out.duration_s, out.attempt_stages,
                           [p.planning_time_s for p in out.plans])  # fmt: skip
 
 
-def _run_chunk(jobs: list[EvalJob], replan: int, eval_id: str, checkpoint_id: str | None, keep: bool):
-    return [_run_job(j, replan, eval_id, checkpoint_id, keep) for j in jobs]
+def _run_chunk(work: list[tuple[int, EvalJob, PolicyRun]], replan: int, keep: bool):
+    return [(i, _run_job(job, policy, replan, keep)) for i, job, policy in work]
+
+
+def run_rollouts(
+    work: list[tuple[EvalJob, PolicyRun]],
+    *,
+    scene: str,
+    robot: str,
+    data_dir: str,
+    replan: int = 0,
+    workers: int = 1,
+    keep: bool = True,
+    on_done: Callable[[int, RolloutSummary], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> list[RolloutSummary]:
+    """Run each (job, policy) of ``work`` and store it; the summaries come back in the order of ``work``.
+
+    ``workers`` > 1 runs them in that many processes, each with the scene and every policy's planner loaded.
+    ``on_done(i, summary)`` is called (in this process) as each finishes, in any order; ``should_stop`` is polled
+    between rollouts (and every tick of an in-process one) and raises :class:`InterruptedError` when it says so.
+    Whatever runs them, each process plans on :data:`studio.eval.planners.PLANNING_THREADS` torch threads, so a
+    rollout does not depend on ``workers``.
+    """
+    checkpoints = tuple(dict.fromkeys(p.checkpoint for _, p in work))
+    done: dict[int, RolloutSummary] = {}
+    workers = max(1, min(workers, len(work)))
+
+    def finished(i: int, summary: RolloutSummary) -> None:
+        done[i] = summary
+        if on_done is not None:
+            on_done(i, summary)
+
+    def stop_now() -> None:
+        if should_stop is not None and should_stop():
+            raise InterruptedError(f"stopped after {len(done)} of {len(work)} rollouts")
+
+    if workers == 1:
+        _init_worker(checkpoints, data_dir, scene, robot)
+        try:
+            for i, (job, policy) in enumerate(work):
+                stop_now()
+                finished(i, _run_job(job, policy, replan, keep, should_stop))
+        finally:
+            _close_worker()  # the renderer's GL context must not outlive the call (a crash at exit otherwise)
+    else:
+        # Small chunks keep progress moving while each worker keeps its env and models loaded.
+        items = [(i, job, policy) for i, (job, policy) in enumerate(work)]
+        chunks = [items[k : k + 4] for k in range(0, len(items), 4)]
+        with ProcessPoolExecutor(
+            workers,
+            mp_context=get_context("spawn"),
+            initializer=_init_worker,
+            initargs=(checkpoints, data_dir, scene, robot),
+        ) as pool:
+            futures = [pool.submit(_run_chunk, c, replan, keep) for c in chunks]
+            try:
+                for f in as_completed(futures):
+                    for i, summary in f.result():
+                        finished(i, summary)
+                    stop_now()
+            except BaseException:
+                for f in futures:
+                    f.cancel()
+                raise
+    return [done[i] for i in range(len(work))]
 
 
 # ---------------------------------------------------------------------------------------------- driver side
@@ -266,40 +383,24 @@ def evaluate(
     checkpoint_id = None if checkpoint == "oracle" else register_checkpoint(root, checkpoint)
     jobs = make_jobs(tasks, episodes, seed)
     started = time.perf_counter()
-    rows: list[RolloutSummary] = []
-    workers = max(1, min(workers, len(jobs)))
-    threads = max(1, (os.cpu_count() or 1) // workers)
+    policy = PolicyRun(checkpoint, checkpoint_id, eval_id)
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(jobs), desc="rollouts", unit="rollout", file=sys.stderr)
-    if workers == 1:
-        _init_worker(checkpoint, root, scene, robot, threads)
-        try:
-            for job in jobs:
-                rows.append(_run_job(job, replan, eval_id, checkpoint_id, keep))
-                if bar:
-                    bar.update(1)
-        finally:
-            _close_worker()  # the renderer's GL context must not outlive the call (a crash at exit otherwise)
-    else:
-        # Small chunks keep the progress bar moving while each worker keeps its env and model loaded.
-        small = [jobs[i : i + 4] for i in range(0, len(jobs), 4)]
-        with ProcessPoolExecutor(
-            workers,
-            mp_context=get_context("spawn"),
-            initializer=_init_worker,
-            initargs=(checkpoint, root, scene, robot, threads),
-        ) as pool:
-            futures = [pool.submit(_run_chunk, c, replan, eval_id, checkpoint_id, keep) for c in small]
-            for f in as_completed(futures):
-                got = f.result()
-                rows.extend(got)
-                if bar:
-                    bar.update(len(got))
-    if bar:
-        bar.close()
+
+    def tick(_i: int, _row: RolloutSummary) -> None:
+        if bar is not None:
+            bar.update(1)
+
+    try:
+        rows = run_rollouts([(j, policy) for j in jobs], scene=scene, robot=robot, data_dir=root, replan=replan,
+                            workers=workers, keep=keep, on_done=tick)  # fmt: skip
+    finally:
+        if bar:
+            bar.close()
+    workers = max(1, min(workers, len(jobs)))
     rows.sort(key=lambda r: (r.task, r.index))
     report = summarise(rows)
     report.update(

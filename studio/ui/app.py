@@ -7,7 +7,7 @@ worker directory, episode store), the embedded sim worker and trainer (unless ``
 teleop sessions run on a sim worker, plans and rollouts are jobs, training is a job.
 
 Each :class:`StudioTab` has its own scene, its own teleop session and the panels (Teleop & record,
-Upload, Datasets, Train, Imitate, Inspect, Workers). What its scene shows is its *view mode*: the live
+Upload, Datasets, Train, Imitate, Inspect, Compare, Workers). What its scene shows is its *view mode*: the live
 teleop session, a running rollout, or a replay. Pose updates reach the scene through one pump thread
 per tab (latest wins, at most :data:`MAX_POSE_HZ`), so a slow browser never slows the simulation.
 """
@@ -79,6 +79,7 @@ class StudioTab:
     """One browser tab: its scene view, its panels, and the threads that keep them current."""
 
     def __init__(self, app: StudioApp, client: viser.ClientHandle):
+        from studio.ui.panels.compare import ComparePanel
         from studio.ui.panels.datasets import DatasetsPanel
         from studio.ui.panels.imitate import ImitatePanel
         from studio.ui.panels.inspector import InspectorPanel
@@ -114,6 +115,8 @@ class StudioTab:
             self.imitate = ImitatePanel(self)
         with tabs.add_tab("Inspect", icon=viser.Icon.TIMELINE):
             self.inspector = InspectorPanel(self)
+        with tabs.add_tab("Compare", icon=viser.Icon.ARROWS_DIFF):
+            self.compare = ComparePanel(self)
         with tabs.add_tab("Workers", icon=viser.Icon.SERVER):
             self.workers = WorkersPanel(self)
         self.back_to_teleop.on_click(lambda _: self.run(self.teleop.show_live, SHOW_LIVE))
@@ -124,6 +127,7 @@ class StudioTab:
             self.train,
             self.imitate,
             self.inspector,
+            self.compare,
             self.workers,
         ]
         self._pump = threading.Thread(target=self._pump_loop, name=f"pump{client.client_id}", daemon=True)
@@ -184,8 +188,7 @@ class StudioTab:
         teleop = getattr(self, "teleop", None)
         if teleop is not None:
             teleop.on_mode(mode)
-        for name in ("plan", "path"):  # a new view starts clean; panels draw what belongs to it
-            self.view.clear_overlay(name)
+        self.view.clear_overlays()  # a new view starts clean; panels draw what belongs to it
         return self._token
 
     @property

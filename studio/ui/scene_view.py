@@ -10,7 +10,8 @@ at once.
 
 The external camera is drawn as a frustum (OpenCV convention, like :class:`studio.sim.camera.CameraModel`)
 showing its latest image. Overlays: the 5 waypoints of a plan (spheres coloured by gripper state, joined
-by a spline, the current one enlarged) and end-effector paths (splines, one colour per gripper state).
+by a spline, the current one enlarged), end-effector paths (splines, one colour per gripper state, or one colour per
+path) and markers (spheres that move).
 
 Meshes are shown with at most :data:`MAX_FACES` triangles each (quadric decimation, computed once per mesh):
 the robot models' visual meshes have 7,000–21,000 triangles per link (130,000 for the Panda), and without a GPU
@@ -244,8 +245,35 @@ class SceneView:
                     ))  # fmt: skip
             self._overlays[name] = handles
 
-    def show_path(self, name: str, points: np.ndarray, gripper: np.ndarray | None = None) -> None:
-        """An end-effector path as splines, one per run of equal gripper state (open blue, closed orange)."""
+    def clear_overlays(self) -> None:
+        """Remove every overlay (a new view starts clean)."""
+        with self._lock:
+            for name in list(self._overlays):
+                self.clear_overlay(name)
+
+    def show_marker(
+        self, name: str, position: np.ndarray, color: tuple[int, int, int], radius: float = 0.016
+    ) -> None:
+        """A sphere at ``position``; called again with the same name it only moves (cheap enough for playback)."""
+        pos = np.asarray(position, dtype=np.float64).reshape(3)
+        with self._lock:
+            handles = self._overlays.get(name)
+            if handles and len(handles) == 1:
+                handles[0].position = pos
+                return
+            self.clear_overlay(name)
+            self._overlays[name] = [self.scene.add_icosphere(f"/overlay/{name}", radius=radius, color=color,
+                                                             position=pos)]  # fmt: skip
+
+    def show_path(
+        self,
+        name: str,
+        points: np.ndarray,
+        gripper: np.ndarray | None = None,
+        color: tuple[int, int, int] | None = None,
+    ) -> None:
+        """An end-effector path as splines, one per run of equal gripper state (open blue, closed orange), or all in
+        ``color`` when given (e.g. two rollouts' paths told apart by colour)."""
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         closed = np.zeros(len(pts), bool) if gripper is None else np.asarray(gripper).reshape(-1) > 0.5
         with self._lock:
@@ -265,9 +293,9 @@ class SceneView:
                         end = min(k, len(idx) - 1)
                         seg = pts[idx[start : end + 1]]
                         if len(seg) >= 2:
-                            color = PATH_RGB["closed" if closed[idx[start]] else "open"]
+                            rgb = color or PATH_RGB["closed" if closed[idx[start]] else "open"]
                             handles.append(self.scene.add_spline_catmull_rom(
-                                f"/overlay/{name}/s{k}", seg, thickness=0.005, color=color))  # fmt: skip
+                                f"/overlay/{name}/s{k}", seg, thickness=0.005, color=rgb))  # fmt: skip
                         start = k
                 handles.append(self.scene.add_icosphere(
                     f"/overlay/{name}/start", radius=0.01, color=(255, 255, 255), position=pts[0]))  # fmt: skip
@@ -275,8 +303,7 @@ class SceneView:
 
     def clear(self) -> None:
         with self._lock:
-            for name in list(self._overlays):
-                self.clear_overlay(name)
+            self.clear_overlays()
             self._clear_bodies()
             if self._frustum is not None:
                 self._frustum.remove()

@@ -16,6 +16,8 @@ from studio.eval.oracle import OraclePlanner
 from studio.eval.rollout import failure_stage, run_rollout
 from studio.sim.env import SimEnv
 
+from .tiny_checkpoint import write_tiny_checkpoint
+
 
 class MissThenOracle:
     """Plans empty air first, then the true waypoints: exercises re-planning."""
@@ -118,45 +120,6 @@ def test_missing_demonstrations_give_a_clear_error(tmp_path):
         evaluate("oracle", ["pick_place/bar->yellow"], 1, seed=0, data_dir=tmp_path, progress=False)
 
 
-def _tiny_checkpoint(path):
-    """An untrained small model in the training checkpoint format (planning quality is not the point here)."""
-    import torch
-
-    from studio.model.config import ModelConfig, RunConfig, TrainConfig
-    from studio.model.osvi_wm import OSVIWM
-    from studio.model.train import CHECKPOINT_FORMAT
-
-    torch.manual_seed(0)
-    model = ModelConfig(
-        image_size=(48, 64),
-        n_expert_frames=4,
-        n_agent_frames=3,
-        encoder_stages=2,
-        state_channels=16,
-        action_blocks=1,
-        action_heads=2,
-        action_attn_dim=16,
-        action_mlp_dim=32,
-        wm_blocks=1,
-        wm_heads=2,
-        wm_width=32,
-        wm_mlp_dim=64,
-        head_hidden=64,
-    )
-    run = RunConfig(model=model, train=TrainConfig())
-    path.parent.mkdir(parents=True)
-    torch.save(
-        {
-            "format": CHECKPOINT_FORMAT,
-            "config": run.to_dict(),
-            "step": 7,
-            "model": OSVIWM(model).state_dict(),
-        },
-        path,
-    )
-    return path
-
-
 def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
     root = tmp_path / "data"
     collect(
@@ -170,7 +133,7 @@ def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
             image_size=(120, 160),
         )
     )
-    ck = _tiny_checkpoint(tmp_path / "run-a" / "best.pt")
+    ck = write_tiny_checkpoint(tmp_path / "run-a" / "best.pt")
     for _ in range(2):  # the second evaluation finds the registration made by the first
         report = evaluate(str(ck), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False)
         assert report["rows"][0]["planning_time_s"] > 0
@@ -201,7 +164,7 @@ def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_pa
             image_size=(120, 160),
         )
     )
-    ck = str(_tiny_checkpoint(tmp_path / "run" / "best.pt"))
+    ck = str(write_tiny_checkpoint(tmp_path / "run" / "best.pt"))
     two = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=2, data_dir=root, progress=False)
     zero = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=0, data_dir=root, progress=False)
     assert max(r["replans"] for r in two["rows"]) == 2  # the untrained policy fails and re-plans
@@ -247,3 +210,40 @@ def test_results_command_writes_a_table_of_held_out_success(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["results", "--policy", "no-equals-sign"])
     assert "NAME=CHECKPOINT" in capsys.readouterr().err
+
+
+def test_a_rollout_does_not_depend_on_the_number_of_evaluation_workers(tmp_path):
+    """The same (checkpoint, task, seed, demonstration) gives the same rollout, bit for bit, whether one process
+    runs every rollout or two share them: each plans on a fixed number of torch threads. (It once followed
+    cores ÷ workers; the shipped policy's plans made on 1 and on 2 threads differ by ~5e-8 — an untrained model's
+    happen not to.)"""
+    import torch
+
+    from studio.data.paths import SHIPPED_POLICY_DIR
+
+    root = tmp_path / "data"
+    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue"], episodes=2,
+                          data_dir=str(root), progress=False, image_size=(120, 160)))  # fmt: skip
+    ck = str(SHIPPED_POLICY_DIR / "pick-place-cpu.pt")
+    threads = torch.get_num_threads()
+    one = evaluate(ck, ["pick_place/bar->blue"], 2, seed=4, workers=1, data_dir=root, progress=False)
+    assert torch.get_num_threads() == threads, (
+        "an in-process evaluation leaves the caller's torch threads alone"
+    )
+    two = evaluate(ck, ["pick_place/bar->blue"], 2, seed=4, workers=2, data_dir=root, progress=False)
+    assert [(r["seed"], r["expert_episode_id"]) for r in one["rows"]] == [
+        (r["seed"], r["expert_episode_id"]) for r in two["rows"]
+    ]
+    with EpisodeStore(root) as store:
+        rollouts = {r.id: r for r in store.catalog.rollouts()}
+        for a, b in zip(one["rows"], two["rows"], strict=True):
+            ra, rb = rollouts[a["rollout_id"]], rollouts[b["rollout_id"]]
+            with (
+                np.load(os.path.join(ra.path, "plans.npz")) as pa,
+                np.load(os.path.join(rb.path, "plans.npz")) as pb,
+            ):
+                assert np.array_equal(pa["plan0_waypoints_world"], pb["plan0_waypoints_world"])
+            _, _, xa = store.load_arrays(ra.episode_id)
+            _, _, xb = store.load_arrays(rb.episode_id)
+            assert np.array_equal(xa["qpos"], xb["qpos"]), "the same plan, executed the same way"
+            assert ra.extra["stage_ticks"] == rb.extra["stage_ticks"]

@@ -12,8 +12,10 @@ it is counted on the websocket, not on the screen).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -492,6 +494,84 @@ def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     mid = ins.replay.poses_at(steps // 2)
     assert not np.allclose(mid, ins.replay.poses_at(0)), "the scene moves along the timeline"
     assert "plan" in tab.view._overlays
+
+
+@pytest.mark.slow
+def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_side(studio, page, shots):
+    """The Compare tab: the oracle (A) against a tiny untrained checkpoint (B) on two seeds of a training task —
+    every episode differs (the untrained model reaches nothing) — then one seed opened: one timeline moves both
+    camera frames and the scene, the shorter rollout holding its last frame."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    tab = _tab(studio)
+    cmp = tab.compare
+    run = studio.data_dir / "runs" / "tiny-run"
+    tiny = Path(__file__).resolve().parents[1] / "eval" / "tiny_checkpoint.py"
+    done = subprocess.run([sys.executable, str(tiny), str(run / "best.pt")], capture_output=True, text=True,
+                          timeout=120)  # fmt: skip  # its own process: this one never imports torch
+    assert done.returncode == 0, done.stderr[-2000:]
+    _open_tab(page, "Compare", "Run two checkpoints on the")
+    _wait(lambda: "tiny-run/best" in cmp.ck_b.options, 20, "the new run among the checkpoints")
+    cmp.ck_a.value, cmp.ck_b.value = "oracle", "tiny-run/best"
+    cmp.tasks.value = TRAIN_TASKS[0]
+    cmp.episodes.value = 2
+    cmp.seed.value = 1
+    _click(page.get_by_role("button", name="Start", exact=True))
+    job = _wait(lambda: cmp.job, 30, "the compare job")
+    _wait(lambda: job.progress is not None and "episode 1 of 2" in job.progress.message, 180, "episode 1 of 2",
+          lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}")  # fmt: skip
+    with contextlib.suppress(PlaywrightTimeout):  # the page may already show the end: a screenshot is no test
+        page.get_by_text(re.compile(r"episode \d of 2")).first.wait_for(timeout=20_000)
+    _shot(page, shots / "compare-running.png")
+    _wait(lambda: "finished:" in cmp.status.content, 180, "the comparison to finish",
+          lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}")  # fmt: skip
+    page.get_by_text("episodes in").first.wait_for(timeout=60_000)
+    assert len(cmp.rows) == 2 and all(r.difference == "A only" for r in cmp.rows), cmp.table.content
+    assert (
+        "**A 100.0%** (2 / 2, oracle) · **B 0.0%** (0 / 2, tiny-run/best) · A only 2 · B only 0"
+        in cmp.totals.content
+    )
+    assert cmp.table.content.count("**A only**") == 2 and cmp.pick.value.startswith("1. cube->red #")
+    assert "| A | B | difference |" in cmp.table.content and "| cube->red | " in cmp.table.content
+    catalog = studio.store.catalog
+    a = {(r.task, r.seed, r.expert_episode_id) for r in catalog.rollouts(eval_id=job.result["eval_ids"][0])}
+    b = {(r.task, r.seed, r.expert_episode_id) for r in catalog.rollouts(eval_id=job.result["eval_ids"][1])}
+    assert a == b and len(a) == 2, "A and B rolled out the identical episodes"
+    _shot(page, shots / "compare-table.png", scroll_to="Per-seed table")
+
+    _click_until(page, page.get_by_role("button", name="Open side by side"), "Paths: A blue")
+    assert tab.mode == "compare" and {"path", "path_b", "ee_a", "ee_b"} <= set(tab.view._overlays)
+    sa, sb = cmp.sides
+    steps = max(sa.steps, sb.steps)
+    assert sa.steps != sb.steps and int(cmp.timeline.slider.max) == steps - 1, "the timeline spans the longer"
+    first = np.asarray(cmp.image.image).copy()
+    half = first.shape[1] // 2
+    mid = min(sa.steps, sb.steps) * 2 // 3
+    cmp.timeline.slider.value = mid
+    _wait(lambda: f"Step {mid} of {steps - 1}." in cmp.step_info.content, 30, "the shared timeline to move")
+    moved = np.asarray(cmp.image.image)
+    body = slice(20, None)  # below the labels drawn on the frames
+    assert not np.array_equal(first[body, :half], moved[body, :half]), "A's camera frame follows the timeline"
+    assert not np.array_equal(first[body, half:], moved[body, half:]), "B's camera frame follows the timeline"
+    page.get_by_text(f"Step {mid} of {steps - 1}.").first.wait_for(timeout=60_000)
+    _shot(page, shots / "compare-playback.png", scroll_to="The scene shows")
+    cmp.timeline.slider.value = steps - 1  # past the shorter rollout's end: it holds its last frame
+    shorter = sa if sa.steps < sb.steps else sb
+    _wait(lambda: f"Step {steps - 1} of" in cmp.step_info.content, 30, "the timeline's end")
+    held = shorter.describe(steps - 1)
+    assert "holding its last frame" in held and held in cmp.step_info.content
+    cmp.shows.value = "B"
+    _wait(lambda: "The scene shows B." in cmp.step_info.content, 10, "the scene to show B")
+    page.get_by_text("The scene shows B.").first.wait_for(timeout=60_000)
+    _shot(page, shots / "compare-end-b.png", scroll_to="The scene shows")
+    # The same rows again from the catalog: the comparison's two stored evaluations, compared without running.
+    ran = [r.to_dict() for r in cmp.rows]
+    _click(page.get_by_text("Stored evaluations"))
+    _wait(lambda: cmp.eval_a.value.startswith(job.result["eval_ids"][0] + " ")
+          and cmp.eval_b.value.startswith(job.result["eval_ids"][1] + " "), 20, "the comparison's evaluations")  # fmt: skip
+    cmp.rows = []
+    _click_until(page, page.get_by_role("button", name="Compare stored rollouts"), "2 shared episodes")
+    assert [r.to_dict() for r in cmp.rows] == ran
 
 
 def test_workers_panel_lists_the_embedded_workers(studio, page, shots):

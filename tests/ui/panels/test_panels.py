@@ -1,7 +1,10 @@
-"""Pure helpers of the panels: dataset counts, override parsing, task labels."""
+"""Pure helpers of the panels: dataset counts, override parsing, task labels, a compared rollout's stage."""
 
 from types import SimpleNamespace
 
+import numpy as np
+
+from studio.ui.panels.compare import OpenedRollout, task_choices
 from studio.ui.panels.datasets import counts_table
 from studio.ui.panels.imitate import HELD_OUT, task_labels
 from studio.ui.panels.train import parse_overrides
@@ -79,4 +82,23 @@ def test_a_forked_episode_says_where_it_came_from():
         forked_note({"worker": "w"}) == ""
         and forked_note(None) == ""
         and forked_note({"forked_from": 3}) == ""
+    )
+
+
+def test_a_compared_rollout_says_what_it_does_at_each_step_and_holds_its_end():
+    record = SimpleNamespace(success=False, failure_stage="place", extra={"stage_ticks": {"reached": 40, "grasped": 60,
+                                                                                          "placed": None}})  # fmt: skip
+    replay = SimpleNamespace(num_steps=100, frame_steps=np.array([0, 50, 99]))
+    frames = np.arange(3).reshape(3, 1, 1, 1) * np.ones((3, 2, 2, 3), np.uint8)
+    side = OpenedRollout("A", "ck", record, replay, frames, np.array([0, 70]))
+    assert [side.short(s) for s in (0, 40, 59, 60, 99, 150)] == ["reaching", "grasping", "grasping", "placing",
+                                                               "ended: failed at place", "ended: failed at place"]  # fmt: skip
+    assert side.describe(10) == "reaching, plan 1 of 2" and side.describe(80) == "placing, plan 2 of 2"
+    assert side.describe(99) == "ended at step 99: ✘ failed at place"
+    assert side.describe(120) == "ended at step 99: ✘ failed at place (holding its last frame)"
+    assert [int(side.frame_at(s)[0, 0, 0]) for s in (0, 49, 50, 98, 99, 500)] == [0, 0, 1, 1, 2, 2]
+    record.extra = {}
+    assert side.describe(10) == "stage timing not recorded, plan 1 of 2"
+    assert task_choices("push")[:3] == ("held-out", "train", "all") and "push/blue-backward" in task_choices(
+        "push"
     )
