@@ -779,7 +779,11 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     ins.outcome.value = "failures"
     ins.checkpoint.value = "fixture-run/best"
     _wait(lambda: ins.rollout.options[0].startswith(failed.id), 10, "the failed rollout listed")
-    _click_until(page, page.get_by_role("button", name="Open", exact=True), "Stages:")
+    shown = (
+        ins.replay
+    )  # an earlier test may have opened it: wait for this Open's replay (it resets the timeline)
+    _click_until_done(page.get_by_role("button", name="Open", exact=True),
+                      lambda: _wait(lambda: ins.replay is not shown and ins.record.id == failed.id, 30, "the replay"))  # fmt: skip
     page.get_by_text("No episode was forked from this rollout yet").first.wait_for(timeout=30_000)
     k = 40  # the arm is on its way to the misaimed grasp
     ins.timeline.slider.value = k
