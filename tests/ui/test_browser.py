@@ -789,16 +789,12 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     ins.timeline.slider.value = k
     _wait(lambda: f"Step {k} of" in ins.plan_info.content, 30, "the timeline to move")
     before = {m.id for m in studio.store.episodes()}
-    _, seen = tp.client.poses.get()  # poses of the session before the fork
     _click_until(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
     _wait(lambda: tp._recording and tab.mode == "teleop" and tp.info.robot == "panda", 60, "the fork session",
           lambda: _teleop_state(tab))  # fmt: skip
     assert (tp.info.task, tp.info.seed) == (failed.task, failed.seed)
-    first, seen = tp.client.poses.wait_newer(seen, 10)
-    while first is not None and not (
-        first.body_count == len(tp.info.body_names) and k <= first.step < k + 25
-    ):
-        first, seen = tp.client.poses.wait_newer(seen, 10)  # the last poses of the session before
+    # A pose of the forked session (the arm holds still where the rollout had it: nothing commands it yet).
+    first = tp.client.poses.wait_until(lambda f: f.body_count == len(tp.info.body_names) and f.step >= k, 10)
     assert first is not None, f"no pose of the forked scene; {_teleop_state(tab)}"
     np.testing.assert_allclose(first.ee_pos, ins.replay.arrays["ee_pos_world"][k], atol=5e-3,
                                err_msg=f"step {first.step}; {_teleop_state(tab)}")  # fmt: skip
