@@ -101,21 +101,21 @@ DIGITS = (
         ((0.0235, 0.000, 0.077), (0.0235, 0.034, 0.048), (0.0235, 0.050, 0.026), (0.0235, 0.059, 0.007)),
         (0.0098, 0.0090, 0.0084),
         (0.0, -1.0, 0.0),
-        (1.0, 1.45, 0.9),
+        (0.8, 1.2, 0.8),
     ),
     Digit(
         "ring",
         ((0.0435, -0.005, 0.075), (0.0445, 0.027, 0.048), (0.0445, 0.042, 0.028), (0.0445, 0.050, 0.011)),
         (0.0093, 0.0086, 0.0080),
         (0.0, -1.0, 0.0),
-        (1.0, 1.45, 0.9),
+        (0.9, 1.3, 0.8),
     ),
     Digit(
         "little",
         ((0.0615, -0.014, 0.071), (0.0635, 0.011, 0.050), (0.0635, 0.023, 0.035), (0.0635, 0.030, 0.020)),
         (0.0084, 0.0078, 0.0072),
         (0.0, -1.0, 0.0),
-        (1.0, 1.45, 0.9),
+        (1.0, 1.35, 0.8),
     ),
 )
 
@@ -191,7 +191,8 @@ def _digit_xml(d: Digit) -> str:
 
 
 def _palm_xml() -> str:
-    """Palm (a box rounded by capsules on its four edges, the thenar pad at the thumb), wrist, forearm and arm."""
+    """Palm (a box rounded by capsules on its four edges and a domed back, the thenar pad at the thumb), wrist,
+    forearm and arm."""
     mcps = [np.asarray(d.points[0], dtype=np.float64) for d in DIGITS[1:]]
     knuckles = np.mean(mcps, axis=0)
     length = _unit(knuckles - WRIST)
@@ -214,14 +215,16 @@ def _palm_xml() -> str:
     sleeve_start = WRIST + 0.17 * _unit(FOREARM_DIR)
     return f"""
       <geom name="hand_palm" class="hand_skin" type="box" pos="{_vec(box_c)}" quat="{_quat(R)}"
-            size="{0.5 * (ulnar - radial):.4f} 0.0105 {0.5 * (span - 0.018):.4f}"/>
+            size="{0.5 * (ulnar - radial):.4f} 0.0095 {0.5 * (span - 0.018):.4f}"/>
+      <geom name="hand_dorsum" class="hand_skin" type="ellipsoid" pos="{_vec(box_c + 0.001 * dorsal)}"
+            quat="{_quat(R)}" size="{0.5 * (ulnar - radial) + 0.003:.4f} 0.0125 {0.5 * span - 0.002:.4f}"/>
       <geom name="hand_knuckles" class="hand_skin" type="capsule" size="0.0125" fromto="{knuckle_line}"/>
       <geom name="hand_palm_radial" class="hand_skin" type="capsule" size="0.012"
             fromto="{_vec(at(radial + 0.004, 0.014))} {_vec(mcps[0] - 0.004 * length)}"/>
       <geom name="hand_palm_ulnar" class="hand_skin" type="capsule" size="0.0125"
             fromto="{_vec(at(ulnar - 0.004, 0.014))} {_vec(mcps[-1] - 0.004 * length)}"/>
-      <geom name="hand_palm_heel" class="hand_skin" type="capsule" size="0.014"
-            fromto="{_vec(at(radial + 0.004, 0.014))} {_vec(at(ulnar - 0.004, 0.014))}"/>
+      <geom name="hand_palm_heel" class="hand_skin" type="capsule" size="0.0125"
+            fromto="{_vec(at(radial + 0.006, 0.016))} {_vec(at(ulnar - 0.006, 0.016))}"/>
       <geom name="hand_thenar" class="hand_skin" type="ellipsoid" size="0.016 0.013 0.027"
             pos="{_vec(thenar_c)}" quat="{_quat(_frame(thumb1 - thumb0, (0, 1, 0)))}"/>
       <geom name="hand_wrist" class="hand_visual" type="ellipsoid" size="0.031 0.021 0.024" pos="{_vec(WRIST)}"
