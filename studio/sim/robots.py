@@ -29,10 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from studio.sim import hand
+from studio.sim.recording import EMBODIMENT_OF_ROBOT
 
-ROBOTS = ("panda", "sawyer", "hand")
-#: The embodiment a robot's episodes are stored under (:mod:`studio.data.episode`): the hand's are "human".
-EMBODIMENT_OF_ROBOT = {"panda": "panda", "sawyer": "sawyer", "hand": "human"}
+ROBOTS = tuple(EMBODIMENT_OF_ROBOT)
 
 
 def package_dir(name: str) -> Path:
@@ -146,22 +145,6 @@ def robot_info(name: str) -> RobotInfo:
 # and away from the robot), the orientation the Sawyer's wrist reaches comfortably too: columns are
 # the site's x, y (finger closing direction) and z (approach direction, pointing down).
 TOP_DOWN = np.array([[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
-
-
-def embodiment_of(robot: str) -> str:
-    """The embodiment a robot's recordings are stored under (``"human"`` for the hand)."""
-    try:
-        return EMBODIMENT_OF_ROBOT[robot]
-    except KeyError:
-        raise ValueError(f"unknown robot {robot!r}; choose from {ROBOTS}") from None
-
-
-def robot_of(embodiment: str) -> str:
-    """The simulated robot that records episodes of an embodiment (the hand for ``"human"``)."""
-    for robot, emb in EMBODIMENT_OF_ROBOT.items():
-        if emb == embodiment:
-            return robot
-    raise ValueError(f"no simulated robot has the embodiment {embodiment!r}")
 
 
 def robot_xml(name: str) -> str:
