@@ -1,8 +1,10 @@
 """`studio eval`: imitation success on (unseen) tasks, with the paper's breakdown, every rollout stored.
 
 For each rollout: a fresh scene from a seed derived from (``--seed``, task, index), a demonstration of that
-task drawn (with a seed derived the same way) from the store's expert episodes — Sawyer or human, so the agent
-(Panda) imitates another embodiment as in the paper — one planning call, execution with grasp correction,
+task drawn (with a seed derived the same way) from the store's expert episodes — by default Sawyer or human
+(uploaded videos and the simulated hand), so the agent (Panda) imitates another embodiment as in the paper;
+``--expert-embodiment human`` draws from the human demonstrations only (Human-Franka), ``panda`` from the
+Panda's own (Two-Franka) — one planning call, execution with grasp correction,
 and up to ``--replan`` re-plans inside the same episode. Rollouts run in parallel worker processes; each is
 stored (recording as an agent episode, plans and predicted latents in its folder) and indexed in the catalog.
 
@@ -18,7 +20,7 @@ import os
 import sys
 import time
 import uuid
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
@@ -73,7 +75,13 @@ def make_jobs(tasks: list[str], episodes: int, seed: int) -> list[EvalJob]:
 _W: dict = {}
 
 
-def _init_worker(checkpoint: str, data_dir: str, scene: str, robot: str, threads: int) -> None:
+#: Whose demonstrations a rollout imitates unless told otherwise: another embodiment than the Panda agent's.
+DEFAULT_EXPERT_EMBODIMENTS = ("sawyer", "human")
+
+
+def _init_worker(
+    checkpoint: str, data_dir: str, scene: str, robot: str, threads: int, expert_embodiments: tuple[str, ...]
+) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     from studio.data.store import EpisodeStore
     from studio.sim.env import make_env
@@ -92,6 +100,7 @@ def _init_worker(checkpoint: str, data_dir: str, scene: str, robot: str, threads
 
         _W["planner"] = Planner.load(checkpoint)
     _W["checkpoint"] = checkpoint
+    _W["expert_embodiments"] = expert_embodiments
 
 
 def _close_worker() -> None:
@@ -103,12 +112,18 @@ def _close_worker() -> None:
         store.close()
 
 
-def _expert_choices(store, task: str) -> list[str]:
-    ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=("sawyer", "human"))]
+#: How to collect demonstrations of an embodiment (for the message when there are none).
+_COLLECT_HINT = {"sawyer": "--robot sawyer", "human": "--robot hand", "panda": "--robot panda --role expert"}
+
+
+def _expert_choices(store, task: str, embodiments: tuple[str, ...] = DEFAULT_EXPERT_EMBODIMENTS) -> list[str]:
+    """Ids of the stored demonstrations of ``task`` by one of ``embodiments``, sorted."""
+    ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=list(embodiments))]
     if not ids:
+        hint = _COLLECT_HINT.get(embodiments[0], "--robot sawyer")
         raise RuntimeError(
-            f"no expert demonstration of {task!r} in the store; "
-            f"collect some with: studio collect --robot sawyer --tasks {task}"
+            f"no expert demonstration of {task!r} by {' or '.join(embodiments)} in the store; "
+            f"collect some with: studio collect {hint} --tasks {task}"
         )
     return sorted(ids)
 
@@ -120,7 +135,7 @@ def _run_job(
     from studio.eval.rollout import run_rollout, store_rollout
 
     store, env, planner = _W["store"], _W["env"], _W["planner"]
-    choices = _expert_choices(store, job.task)
+    choices = _expert_choices(store, job.task, _W["expert_embodiments"])
     expert_id = choices[np.random.default_rng(job.expert_seed).integers(len(choices))]
     expert_frames = store.load_frames(expert_id)
     if hasattr(planner, "clear_cache"):
@@ -251,8 +266,13 @@ def evaluate(
     robot: str | None = None,
     keep: bool = True,
     progress: bool = True,
+    expert_embodiments: Sequence[str] | None = None,
 ) -> dict:
-    """Run the evaluation and return the report (also written into the catalog as rollouts)."""
+    """Run the evaluation and return the report (also written into the catalog as rollouts).
+
+    ``expert_embodiments`` picks whose demonstrations the rollouts imitate (None: Sawyer or human; Meta-World: the
+    Sawyer, its only demonstrator).
+    """
     from studio.data.paths import resolve_data_dir
     from studio.sim.tasks import get_task
 
@@ -261,6 +281,9 @@ def evaluate(
         raise ValueError(f"evaluate one scene at a time, got tasks from {sorted(scenes)}")
     scene = scenes.pop()
     robot = robot or default_robot(scene)
+    experts = tuple(
+        expert_embodiments or (("sawyer",) if scene == "metaworld" else DEFAULT_EXPERT_EMBODIMENTS)
+    )
     root = str(resolve_data_dir(data_dir))
     eval_id = f"eval-{uuid.uuid4().hex[:10]}"
     checkpoint_id = None if checkpoint == "oracle" else register_checkpoint(root, checkpoint)
@@ -275,7 +298,7 @@ def evaluate(
 
         bar = tqdm(total=len(jobs), desc="rollouts", unit="rollout", file=sys.stderr)
     if workers == 1:
-        _init_worker(checkpoint, root, scene, robot, threads)
+        _init_worker(checkpoint, root, scene, robot, threads, experts)
         try:
             for job in jobs:
                 rows.append(_run_job(job, replan, eval_id, checkpoint_id, keep))
@@ -290,7 +313,7 @@ def evaluate(
             workers,
             mp_context=get_context("spawn"),
             initializer=_init_worker,
-            initargs=(checkpoint, root, scene, robot, threads),
+            initargs=(checkpoint, root, scene, robot, threads, experts),
         ) as pool:
             futures = [pool.submit(_run_chunk, c, replan, eval_id, checkpoint_id, keep) for c in small]
             for f in as_completed(futures):
@@ -307,6 +330,7 @@ def evaluate(
             "eval_id": eval_id,
             "checkpoint": checkpoint,
             "robot": robot,
+            "expert_embodiments": list(experts),
             "scene": scene,
             "seed": seed,
             "replan": replan,
@@ -317,6 +341,31 @@ def evaluate(
         }
     )
     return report
+
+
+def add_expert_embodiment_argument(parser: argparse.ArgumentParser) -> None:
+    """``--expert-embodiment``: whose demonstrations the rollouts imitate (repeatable or comma-separated)."""
+    parser.add_argument(
+        "--expert-embodiment",
+        action="append",
+        default=None,
+        metavar="EMBODIMENT",
+        help="imitate demonstrations by this embodiment only: sawyer, human (uploaded videos and the simulated "
+        "hand) or panda; repeatable or comma-separated (default: sawyer and human; metaworld: sawyer)",
+    )
+
+
+def expert_embodiments_of(args: argparse.Namespace) -> list[str] | None:
+    """The embodiments ``--expert-embodiment`` named (None: the default); raises ValueError on an unknown one."""
+    from studio.data.episode import EMBODIMENTS
+
+    if not args.expert_embodiment:
+        return None
+    names = [n.strip() for item in args.expert_embodiment for n in item.split(",") if n.strip()]
+    unknown = sorted(set(names) - set(EMBODIMENTS))
+    if unknown:
+        raise ValueError(f"unknown embodiment(s) {', '.join(unknown)}; choose from {', '.join(EMBODIMENTS)}")
+    return names
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -340,6 +389,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--robot", default=None, help="the agent robot (default: panda; sawyer for metaworld)"
     )
+    add_expert_embodiment_argument(parser)
     parser.add_argument(
         "--no-store", action="store_true", help="do not store the rollouts (catalog rows only)"
     )
@@ -354,6 +404,7 @@ def run(args: argparse.Namespace) -> int:
         if names and names[0] not in SPLIT_WORDS:
             scene = scene_of_task(names[0])  # task names give their scene; --scene is for the split words
         tasks = resolve_tasks(scene, names)
+        experts = expert_embodiments_of(args)
     except ValueError as err:
         print(f"studio eval: {err}", file=sys.stderr)
         return 2
@@ -367,12 +418,14 @@ def run(args: argparse.Namespace) -> int:
         args.data_dir,
         args.robot,
         keep=not args.no_store,
+        expert_embodiments=experts,
     )
     if args.json:
         print(json.dumps(report, default=float))
         return 0
     print(
         f"eval {report['eval_id']}  checkpoint={args.checkpoint}  replan={args.replan}  "
+        f"experts={','.join(report['expert_embodiments'])}  "
         f"{report['rollouts']} rollouts in {report['wall_s']:.0f} s"
     )
     print(
