@@ -83,6 +83,30 @@ def test_pairs_same_task_expert_and_agent(store):
         assert sorted(agents) == sorted({int(x) for x, t in zip(a, ds.pair_tasks) if ds.tasks[t] == task})
 
 
+def test_hand_demonstrations_pair_with_panda_agents_alone(store):
+    # The simulated hand's demonstrations (embodiment "human", with robot state) and a Panda demonstration.
+    for i, task in enumerate((T1, T1, T1, T2, T2, T2)):
+        store.add_episode(
+            make_recording(task=task, robot="hand", seed=200 + i), role="expert", source="scripted"
+        )
+    store.add_episode(make_recording(task=T1, robot="panda", seed=300), role="expert", source="scripted")
+    everyone = _dataset(store)
+    assert {m.embodiment for m in everyone.episodes if m.role == "expert"} == {"sawyer", "human", "panda"}
+    ds = _dataset(store, expert_embodiments=["human"])
+    for ei, ai in ds.pairs:
+        me, ma = ds.episodes[ei], ds.episodes[ai]
+        assert (me.role, me.embodiment) == ("expert", "human") and (ma.role, ma.embodiment) == (
+            "agent",
+            "panda",
+        )
+        assert me.task == ma.task
+    experts = {ds.episodes[e].id for e in ds.pairs[:, 0]}
+    assert (
+        len(experts) >= 4
+    )  # hand demonstrations of both tasks (and T2's uploaded video), validation held out
+    assert len(_dataset(store, expert_embodiments=["panda"])) == 3  # the Panda demonstration x T1's 3 agents
+
+
 def test_sample_contract(store):
     ds = _dataset(store)
     H, W = SIZE
