@@ -48,8 +48,9 @@ MIN_RECORDED_STEPS = 20
 FRAME_PERIOD_S = 0.1
 #: ... but never fewer than MIN_RECORDED_STEPS frames, nor more than this.
 MAX_RECORDED_FRAMES = 300
-#: Default robot role of a teleop recording, by robot (the Sawyer demonstrates, the Panda is the agent).
-DEFAULT_ROLE: dict[str, msg.Role] = {"sawyer": "expert", "panda": "agent"}
+#: Default robot role of a teleop recording, by robot (the Sawyer and the human hand demonstrate, the Panda is
+#: the agent).
+DEFAULT_ROLE: dict[str, msg.Role] = {"sawyer": "expert", "panda": "agent", "hand": "expert"}
 
 
 #: The codes of :class:`~studio.backend.messages.ErrorReply`.
