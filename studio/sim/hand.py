@@ -1,14 +1,16 @@
 """A simulated human hand and forearm: the demonstrator of the Human-Franka tasks (robot name ``"hand"``).
 
-The model is written here, not loaded from a package: a right hand of capsules around an ellipsoid palm, skin
-coloured, with a forearm and a sleeved upper arm behind the wrist that rise up and back out of the external
-camera's view, so the hand reads as a person's arm reaching in over the table.
+The model is written here, not loaded from a package: a skin-coloured right hand — a palm of a box rounded by
+capsules with a domed back, fingers and thumb of capsules with nails — and a forearm and sleeved upper arm behind
+the wrist that rise up and back out of the external camera's view, so the hand reads as a person's arm reaching
+in over the table.
 
 * Motion: the hand body carries three slide joints (world x, y, z; its orientation is fixed, palm down, fingers
   forward) and is welded to a mocap body, moved with a bounded speed by :class:`HandMocap` exactly as the
   Sawyer's hand is. The slide joints are the "arm joints" a recording stores, so a stored hand episode replays.
 * Fingers: three flexion hinges per digit (15), each with a position actuator. The gripper command curls them:
-  0 is the relaxed open hand, 1 the pinch of thumb and index with the other three fingers tucked into the palm.
+  0 is the relaxed open hand, 1 the pinch of thumb and index with the other three fingers curled towards the
+  palm.
   The grasp site lies between the thumb and index fingertips of the pinch.
 * Grasp: a scripted pinch (:class:`PinchGrasp`). When the gripper command rises above 0.5 with an object's
   centre within :data:`GRASP_RADIUS` of the grasp site, a weld from the hand to that object is switched on,
