@@ -22,6 +22,7 @@ class EpisodeReplay:
 
     def __init__(self, store, episode_id: str):
         from studio.sim.env import make_env
+        from studio.sim.recording import robot_of
 
         meta = store.get(episode_id)
         if not meta.has_arrays or meta.seed is None:
@@ -35,7 +36,7 @@ class EpisodeReplay:
             if frame_steps is not None
             else np.round(np.linspace(0, self.num_steps - 1, meta.num_frames)).astype(np.int64)
         )
-        env = make_env(meta.scene, meta.embodiment)
+        env = make_env(meta.scene, robot_of(meta.embodiment))  # the simulated hand for "human"
         try:
             env.reset(meta.task, meta.seed)
             self.geometry: msg.SceneGeometry = scene_geometry(env.model)

@@ -56,8 +56,9 @@ FRAME_PERIOD_S = 0.1
 MAX_RECORDED_FRAMES = 300
 #: A recording with a draft id sends its new ticks at least this often (simulated seconds).
 DRAFT_PERIOD_S = 0.1
-#: Default robot role of a teleop recording, by robot (the Sawyer demonstrates, the Panda is the agent).
-DEFAULT_ROLE: dict[str, msg.Role] = {"sawyer": "expert", "panda": "agent"}
+#: Default robot role of a teleop recording, by robot (the Sawyer and the human hand demonstrate, the Panda is
+#: the agent).
+DEFAULT_ROLE: dict[str, msg.Role] = {"sawyer": "expert", "panda": "agent", "hand": "expert"}
 
 
 #: The codes of :class:`~studio.backend.messages.ErrorReply`.

@@ -21,7 +21,7 @@ import numpy as np
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=50, help="seeds per task and robot for expert_success")
     parser.add_argument("--scenes", default="pick_place,push", help="scenes for expert_success")
-    parser.add_argument("--robots", default="panda,sawyer", help="robots for expert_success")
+    parser.add_argument("--robots", default="panda,sawyer,hand", help="robots for expert_success")
 
 
 def _rate(fn, min_seconds: float = 2.0) -> float:

@@ -12,7 +12,9 @@ Schema (version 1)::
     episodes(seq PK autoincrement, id UNIQUE, task -> tasks, scene, embodiment, role, source, seed,
              success, created, num_frames, num_steps, height, width, fps, control_dt,
              collect_seed, collect_index, meta_json)
-        unique (task, embodiment, collect_seed, collect_index) for scripted-collection slots
+        unique (task, embodiment, role, collect_seed, collect_index) for scripted-collection slots (a
+        catalog whose slots predate the role, unique per (task, embodiment, collect_seed, collect_index), is
+        widened on open: that index is replaced, no row changes)
     runs(id PK, name, scene, status, config_json, dataset_fingerprint, created, started, finished,
          path, error)
     checkpoints(id PK, run_id -> runs (cascade), step, epoch, created, path, val_loss, metrics_json,
@@ -73,8 +75,9 @@ CREATE TABLE IF NOT EXISTS episodes (
 );
 CREATE INDEX IF NOT EXISTS episodes_by_task ON episodes(task, role, embodiment, success);
 CREATE INDEX IF NOT EXISTS episodes_by_source ON episodes(source, created);
-CREATE UNIQUE INDEX IF NOT EXISTS episodes_by_slot
-    ON episodes(task, embodiment, collect_seed, collect_index) WHERE collect_index IS NOT NULL;
+DROP INDEX IF EXISTS episodes_by_slot;
+CREATE UNIQUE INDEX IF NOT EXISTS episodes_by_role_slot
+    ON episodes(task, embodiment, role, collect_seed, collect_index) WHERE collect_index IS NOT NULL;
 CREATE TABLE IF NOT EXISTS runs (
     id TEXT PRIMARY KEY,
     name TEXT NOT NULL DEFAULT '',
@@ -369,12 +372,16 @@ class Catalog:
     def episode_ids(self) -> set[str]:
         return {r[0] for r in self._query("SELECT id FROM episodes")}
 
-    def filled_slots(self, task: str, embodiment: str, collect_seed: int) -> set[int]:
-        """Indices of a scripted collection run (task, embodiment, base seed) that already have an episode."""
-        rows = self._query(
-            "SELECT collect_index FROM episodes WHERE task = ? AND embodiment = ? AND collect_seed = ?",
-            (task, embodiment, collect_seed),
-        )
+    def filled_slots(
+        self, task: str, embodiment: str, collect_seed: int, role: str | None = None
+    ) -> set[int]:
+        """Indices of a scripted collection run (task, embodiment, base seed; and role unless None) that already
+        have an episode."""
+        sql = "SELECT collect_index FROM episodes WHERE task = ? AND embodiment = ? AND collect_seed = ?"
+        params: list[str | int] = [task, embodiment, collect_seed]
+        if role is not None:
+            sql, params = sql + " AND role = ?", [*params, role]
+        rows = self._query(sql, params)
         return {int(r[0]) for r in rows}
 
     # ------------------------------------------------------------------ runs and checkpoints

@@ -6,7 +6,11 @@ deterministic whatever the number of workers or the order they finish in, and an
 by making only the slots the catalog does not have yet. Failed scripted episodes are not kept: a slot is
 retried with the next attempt's seed, up to ``--max-attempts`` times, and the failures are counted.
 
-The robot decides the role: the Sawyer demonstrates (``expert``) and the Panda imitates (``agent``).
+The robot decides the role unless ``--role`` says otherwise: the Sawyer and the simulated human hand demonstrate
+(``expert``; the hand's episodes are stored with embodiment ``human``, beside uploaded videos of people), the Panda
+imitates (``agent``) or, with ``--role expert``, demonstrates for a Panda agent (Two-Franka). A human hand only
+demonstrates. The role is part of a slot, so a Panda expert run and a Panda agent run with the same base seed fill
+different slots; their scene seeds differ too.
 Meta-World (``--scene metaworld``) has only the Sawyer and its own scripted policies
 (:mod:`studio.sim.metaworld_experts`); as in the paper, expert and agent come from the same pool, so its
 episodes are stored once, as role ``expert`` with embodiment ``sawyer``, and the training view pairs the
@@ -39,7 +43,9 @@ if TYPE_CHECKING:
 # Headless rendering; must be set before anything imports mujoco (studio.sim.tasks does, via its scenes).
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-ROLE_OF_ROBOT = {"sawyer": "expert", "panda": "agent"}
+#: The role a robot's episodes take unless the run says otherwise.
+ROLE_OF_ROBOT = {"sawyer": "expert", "panda": "agent", "hand": "expert"}
+ROLES = ("expert", "agent")
 DEFAULT_RECORDER = "studio.sim.experts:record_expert"
 #: Scenes whose scripted experts are not :data:`DEFAULT_RECORDER`.
 RECORDER_OF_SCENE = {"metaworld": "studio.sim.metaworld_experts:record_expert"}
@@ -55,10 +61,12 @@ class CollectConfig:
         image_size: (H, W) of the stored frames; None: the scene's default (240×320, Meta-World 224×224).
         recorder: ``"module:function"`` with the signature of :func:`studio.sim.experts.record_expert`;
             None: the scene's scripted experts.
+        role: ``"expert"`` or ``"agent"``; None: the robot's (:data:`ROLE_OF_ROBOT`).
     """
 
     scene: str = "pick_place"
     robot: str = "sawyer"
+    role: str | None = None
     tasks: list[str] = field(default_factory=lambda: ["all"])
     episodes: int = 100
     workers: int = 1
@@ -73,6 +81,12 @@ class CollectConfig:
     def __post_init__(self) -> None:
         if self.robot not in ROLE_OF_ROBOT:
             raise ValueError(f"robot must be one of {sorted(ROLE_OF_ROBOT)}, got {self.robot!r}")
+        if self.role is None:
+            self.role = ROLE_OF_ROBOT[self.robot]
+        if self.role not in ROLES:
+            raise ValueError(f"role must be one of {ROLES}, got {self.role!r}")
+        if self.robot == "hand" and self.role != "expert":
+            raise ValueError("the human hand only demonstrates: collect it with role 'expert'")
         if self.episodes < 1 or self.workers < 1 or self.max_attempts < 1:
             raise ValueError("episodes, workers and max_attempts must be at least 1")
         if self.min_frames < MIN_FRAMES:
@@ -95,6 +109,25 @@ class CollectConfig:
         """(H, W) of the stored frames: ``image_size``, which creation resolved to the scene's default if None."""
         assert self.image_size is not None, "CollectConfig.__post_init__ sets image_size"
         return self.image_size
+
+    @property
+    def episode_role(self) -> str:
+        """``role``, which creation resolved to the robot's if None."""
+        assert self.role is not None, "CollectConfig.__post_init__ sets role"
+        return self.role
+
+    @property
+    def embodiment(self) -> str:
+        """The embodiment the episodes are stored under (``"human"`` for the hand)."""
+        from studio.sim.recording import embodiment_of
+
+        return embodiment_of(self.robot)
+
+    @property
+    def seed_key(self) -> str:
+        """What names the run in :func:`episode_seed`: the robot, with the role when it is not the robot's own
+        (so a Panda expert run does not replay the scenes of the Panda agent run with the same base seed)."""
+        return self.robot if self.episode_role == ROLE_OF_ROBOT[self.robot] else f"{self.robot}:{self.role}"
 
     @property
     def recorder_spec(self) -> str:
@@ -131,7 +164,8 @@ class CollectResult:
 
 
 def episode_seed(base_seed: int, robot: str, task: str, index: int, attempt: int = 0) -> int:
-    """The scene seed of one slot and attempt (31-bit, stable across processes and Python versions)."""
+    """The scene seed of one slot and attempt (31-bit, stable across processes and Python versions); ``robot`` is
+    the run's :attr:`CollectConfig.seed_key`."""
     digest = hashlib.sha256(f"{base_seed}|{robot}|{task}|{index}|{attempt}".encode()).digest()
     return int.from_bytes(digest[:4], "little") & 0x7FFFFFFF
 
@@ -140,7 +174,7 @@ def missing_slots(store: EpisodeStore, cfg: CollectConfig, tasks: list[str]) -> 
     """Slots of the run without an episode in the catalog, task by task, index by index."""
     out: list[tuple[str, int]] = []
     for task in tasks:
-        have = store.catalog.filled_slots(task, cfg.robot, cfg.seed)
+        have = store.catalog.filled_slots(task, cfg.embodiment, cfg.seed, cfg.episode_role)
         out.extend((task, i) for i in range(cfg.episodes) if i not in have)
     return out
 
@@ -176,7 +210,7 @@ def _make_slot(slot: tuple[str, int]) -> tuple[str, int, bool, int, str | None]:
         kwargs["env"] = _WORKER["env"]
     try:
         for attempt in range(cfg.max_attempts):
-            seed = episode_seed(cfg.seed, cfg.robot, task, index, attempt)
+            seed = episode_seed(cfg.seed, cfg.seed_key, task, index, attempt)
             rec = _WORKER["recorder"](cfg.scene, cfg.robot, task, seed, **kwargs)
             if not rec.success:
                 failures += 1
@@ -184,14 +218,18 @@ def _make_slot(slot: tuple[str, int]) -> tuple[str, int, bool, int, str | None]:
             try:
                 _WORKER["store"].add_episode(
                     rec,
-                    role=ROLE_OF_ROBOT[cfg.robot],
+                    role=cfg.episode_role,
+                    embodiment=cfg.embodiment,
                     source="scripted",
                     collect_seed=cfg.seed,
                     collect_index=index,
                     extra={"attempt": attempt},
                 )
             except StoreError as e:
-                if index in _WORKER["store"].catalog.filled_slots(task, cfg.robot, cfg.seed):
+                filled = _WORKER["store"].catalog.filled_slots(
+                    task, cfg.embodiment, cfg.seed, cfg.episode_role
+                )
+                if index in filled:
                     return task, index, True, failures, None  # another collector filled it meanwhile
                 raise e
             return task, index, True, failures, None
@@ -227,7 +265,7 @@ def collect(cfg: CollectConfig) -> CollectResult:
     start = time.perf_counter()
     bar = tqdm(
         total=len(todo),
-        desc=f"collect {cfg.scene} {cfg.robot}",
+        desc=f"collect {cfg.scene} {cfg.robot} ({cfg.episode_role})",
         unit="ep",
         disable=not cfg.progress,
         dynamic_ncols=True,
@@ -285,7 +323,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--robot",
         required=True,
         choices=sorted(ROLE_OF_ROBOT),
-        help="sawyer = expert, panda = agent (metaworld: sawyer)",
+        help="sawyer = expert, hand = expert (a simulated person, embodiment 'human'), panda = agent unless "
+        "--role expert (metaworld: sawyer)",
+    )
+    parser.add_argument(
+        "--role",
+        choices=ROLES,
+        default=None,
+        help="store the episodes as this role (default: the robot's; 'expert' makes Panda demonstrations)",
     )
     parser.add_argument(
         "--tasks",
@@ -316,6 +361,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = CollectConfig(
             scene=args.scene,
             robot=args.robot,
+            role=args.role,
             tasks=list(args.tasks),
             episodes=args.episodes,
             workers=args.workers,

@@ -25,7 +25,7 @@ import numpy as np
 
 from studio.data import video
 from studio.sim.camera import CameraModel
-from studio.sim.recording import ARRAY_FIELDS, Recording
+from studio.sim.recording import ARRAY_FIELDS, EMBODIMENT_OF_ROBOT, Recording, robot_of
 
 FORMAT_VERSION = 1
 
@@ -65,7 +65,8 @@ class EpisodeMeta:
         id: unique episode id (:func:`new_episode_id`).
         task: full task name, e.g. ``"pick_place/cube->red"``.
         scene: scene family, e.g. ``"pick_place"``.
-        embodiment: ``"sawyer"``, ``"panda"`` or ``"human"``.
+        embodiment: ``"sawyer"``, ``"panda"`` or ``"human"`` (an uploaded video, or the simulated hand's
+            episodes, which have robot state like the arms').
         role: ``"expert"`` (demonstration video) or ``"agent"`` (trajectory to imitate).
         source: how it was made: ``"scripted"``, ``"teleop"``, ``"upload"``, ``"import"`` or ``"rollout"``.
         seed: the seed the scene was reset with (None for human videos).
@@ -215,7 +216,7 @@ class Episode:
             id=episode_id or new_episode_id(created),
             task=rec.task,
             scene=rec.scene,
-            embodiment=embodiment or rec.robot,
+            embodiment=embodiment or EMBODIMENT_OF_ROBOT.get(rec.robot, rec.robot),
             role=role,
             source=source,
             seed=int(rec.seed),
@@ -246,7 +247,7 @@ class Episode:
             raise EpisodeError(f"episode {self.meta.id} has per-step arrays but no frame_steps or control_dt")
         return Recording(
             scene=self.meta.scene,
-            robot=self.meta.embodiment,
+            robot=robot_of(self.meta.embodiment),
             task=self.meta.task,
             seed=int(self.meta.seed if self.meta.seed is not None else 0),
             success=bool(self.meta.success),

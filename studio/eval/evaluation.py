@@ -1,8 +1,10 @@
 """`studio eval`: imitation success on (unseen) tasks, with the paper's breakdown, every rollout stored.
 
 For each rollout: a fresh scene from a seed derived from (``--seed``, task, index), a demonstration of that
-task drawn (with a seed derived the same way) from the store's expert episodes — Sawyer or human, so the agent
-(Panda) imitates another embodiment as in the paper — one planning call, execution with grasp correction,
+task drawn (with a seed derived the same way) from the store's expert episodes — by default Sawyer or human
+(uploaded videos and the simulated hand), so the agent (Panda) imitates another embodiment as in the paper;
+``--expert-embodiment human`` draws from the human demonstrations only (Human-Franka), ``panda`` from the
+Panda's own (Two-Franka) — one planning call, execution with grasp correction,
 and up to ``--replan`` re-plans inside the same episode. Rollouts run in parallel worker processes; each is
 stored (recording as an agent episode, plans and predicted latents in its folder) and indexed in the catalog.
 Every process plans on the same number of torch threads (``planners.PLANNING_THREADS``), so a rollout is the
@@ -20,7 +22,7 @@ import os
 import sys
 import time
 import uuid
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
@@ -83,29 +85,39 @@ def make_jobs(tasks: list[str], episodes: int, seed: int) -> list[EvalJob]:
     return jobs
 
 
-def _expert_choices(store, task: str) -> list[str]:
-    ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=("sawyer", "human"))]
+#: Whose demonstrations a rollout imitates unless told otherwise: another embodiment than the Panda agent's.
+DEFAULT_EXPERT_EMBODIMENTS = ("sawyer", "human")
+#: How to collect demonstrations of an embodiment (for the message when there are none).
+_COLLECT_HINT = {"sawyer": "--robot sawyer", "human": "--robot hand", "panda": "--robot panda --role expert"}
+
+
+def _expert_choices(store, task: str, embodiments: Sequence[str] = DEFAULT_EXPERT_EMBODIMENTS) -> list[str]:
+    """Ids of the stored demonstrations of ``task`` by one of ``embodiments``, sorted."""
+    ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=list(embodiments))]
     if not ids:
+        hint = _COLLECT_HINT.get(embodiments[0], "--robot sawyer")
         raise RuntimeError(
-            f"no expert demonstration of {task!r} in the store; "
-            f"collect some with: studio collect --robot sawyer --tasks {task}"
+            f"no expert demonstration of {task!r} by {' or '.join(embodiments)} in the store; "
+            f"collect some with: studio collect {hint} --tasks {task}"
         )
     return sorted(ids)
 
 
-def choose_demonstration(store, job: EvalJob) -> str:
+def choose_demonstration(store, job: EvalJob, embodiments: Sequence[str] = DEFAULT_EXPERT_EMBODIMENTS) -> str:
     """The demonstration ``job`` imitates: its own, or one drawn with its ``expert_seed`` from the store's expert
-    episodes of its task (Sawyer or human) as they are now — a demonstration recorded meanwhile changes the draw."""
+    episodes of its task by ``embodiments`` as they are now — a demonstration recorded meanwhile changes the draw."""
     if job.expert_episode_id is not None:
         return job.expert_episode_id
-    choices = _expert_choices(store, job.task)
+    choices = _expert_choices(store, job.task, embodiments)
     return choices[np.random.default_rng(job.expert_seed).integers(len(choices))]
 
 
-def with_demonstrations(store, jobs: list[EvalJob]) -> list[EvalJob]:
+def with_demonstrations(
+    store, jobs: list[EvalJob], embodiments: Sequence[str] = DEFAULT_EXPERT_EMBODIMENTS
+) -> list[EvalJob]:
     """``jobs`` with their demonstrations drawn now, once: rollouts of these jobs by several policies imitate the
     same demonstrations even if the store gains episodes while they run."""
-    return [replace(j, expert_episode_id=choose_demonstration(store, j)) for j in jobs]
+    return [replace(j, expert_episode_id=choose_demonstration(store, j, embodiments)) for j in jobs]
 
 
 # ---------------------------------------------------------------------------------------------- worker side
@@ -368,8 +380,13 @@ def evaluate(
     robot: str | None = None,
     keep: bool = True,
     progress: bool = True,
+    expert_embodiments: Sequence[str] | None = None,
 ) -> dict:
-    """Run the evaluation and return the report (also written into the catalog as rollouts)."""
+    """Run the evaluation and return the report (also written into the catalog as rollouts).
+
+    ``expert_embodiments`` picks whose demonstrations the rollouts imitate (None: Sawyer or human; Meta-World: the
+    Sawyer, its only demonstrator). The demonstrations are drawn before the first rollout.
+    """
     from studio.data.paths import resolve_data_dir
     from studio.sim.tasks import get_task
 
@@ -381,7 +398,13 @@ def evaluate(
     root = str(resolve_data_dir(data_dir))
     eval_id = f"eval-{uuid.uuid4().hex[:10]}"
     checkpoint_id = None if checkpoint == "oracle" else register_checkpoint(root, checkpoint)
-    jobs = make_jobs(tasks, episodes, seed)
+    experts = tuple(
+        expert_embodiments or (("sawyer",) if scene == "metaworld" else DEFAULT_EXPERT_EMBODIMENTS)
+    )
+    from studio.data.store import EpisodeStore
+
+    with EpisodeStore(root) as store:
+        jobs = with_demonstrations(store, make_jobs(tasks, episodes, seed), experts)
     started = time.perf_counter()
     policy = PolicyRun(checkpoint, checkpoint_id, eval_id)
     bar = None
@@ -411,6 +434,7 @@ def evaluate(
             "scene": scene,
             "seed": seed,
             "replan": replan,
+            "expert_embodiments": list(experts),
             "episodes_per_task": episodes,
             "wall_s": time.perf_counter() - started,
             "workers": workers,
@@ -418,6 +442,31 @@ def evaluate(
         }
     )
     return report
+
+
+def add_expert_embodiment_argument(parser: argparse.ArgumentParser) -> None:
+    """``--expert-embodiment``: whose demonstrations the rollouts imitate (repeatable or comma-separated)."""
+    parser.add_argument(
+        "--expert-embodiment",
+        action="append",
+        default=None,
+        metavar="EMBODIMENT",
+        help="imitate demonstrations by this embodiment only: sawyer, human (uploaded videos and the simulated "
+        "hand) or panda; repeatable or comma-separated (default: sawyer and human; metaworld: sawyer)",
+    )
+
+
+def expert_embodiments_of(args: argparse.Namespace) -> list[str] | None:
+    """The embodiments ``--expert-embodiment`` named (None: the default); raises ValueError on an unknown one."""
+    from studio.data.episode import EMBODIMENTS
+
+    if not args.expert_embodiment:
+        return None
+    names = [n.strip() for item in args.expert_embodiment for n in item.split(",") if n.strip()]
+    unknown = sorted(set(names) - set(EMBODIMENTS))
+    if unknown:
+        raise ValueError(f"unknown embodiment(s) {', '.join(unknown)}; choose from {', '.join(EMBODIMENTS)}")
+    return names
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -445,6 +494,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-store", action="store_true", help="do not store the rollouts (catalog rows only)"
     )
     parser.add_argument("--json", action="store_true", help="print the full report as JSON")
+    add_expert_embodiment_argument(parser)
     add_data_dir_argument(parser)
 
 
@@ -455,6 +505,7 @@ def run(args: argparse.Namespace) -> int:
         if names and names[0] not in SPLIT_WORDS:
             scene = scene_of_task(names[0])  # task names give their scene; --scene is for the split words
         tasks = resolve_tasks(scene, names)
+        experts = expert_embodiments_of(args)
     except ValueError as err:
         print(f"studio eval: {err}", file=sys.stderr)
         return 2
@@ -468,12 +519,14 @@ def run(args: argparse.Namespace) -> int:
         args.data_dir,
         args.robot,
         keep=not args.no_store,
+        expert_embodiments=experts,
     )
     if args.json:
         print(json.dumps(report, default=float))
         return 0
     print(
         f"eval {report['eval_id']}  checkpoint={args.checkpoint}  replan={args.replan}  "
+        f"experts={','.join(report['expert_embodiments'])}  "
         f"{report['rollouts']} rollouts in {report['wall_s']:.0f} s"
     )
     print(

@@ -1,7 +1,8 @@
 """`studio results`: the held-out evaluations behind ``docs/results.md``, rendered as a Markdown table.
 
     studio results --policy NAME=CKPT [--policy NAME=CKPT ...] [--scene pick_place] [--episodes 100]
-                   [--replan 0 2] [--seed 0] [--workers 2] [--data-dir DIR] [--out results.md]
+                   [--replan 0 2] [--seed 0] [--workers 2] [--expert-embodiment human] [--data-dir DIR]
+                   [--out results.md]
 
 Each policy (the main checkpoint first, then e.g. ablations trained on the same data and budget) is evaluated on
 the scene's held-out tasks once, with the largest ``--replan`` budget and the same seeds — so every row sees the
@@ -11,7 +12,8 @@ cost of the usual ``--replan 0 2``. A split with ``replan_groups`` (Meta-World: 
 paper's protocol: re-plans on those groups' tasks only, one attempt on the rest. Writes the Markdown (per-task
 success, the mean over each of the split's test groups — Meta-World's easy and hard, the layout of the paper's
 Table 1 — the reached/grasped/placed breakdown, planning time, wall time) and, beside it, the full JSON reports.
-``oracle`` as a checkpoint gives the execution ceiling.
+``oracle`` as a checkpoint gives the execution ceiling. ``--expert-embodiment`` picks whose demonstrations are
+imitated (``studio eval``'s option; e.g. ``human`` for Human-Franka, ``panda`` for Two-Franka).
 """
 
 from __future__ import annotations
@@ -24,7 +26,12 @@ from pathlib import Path
 
 from studio.data.paths import add_data_dir_argument
 from studio.data.splits import SplitSpec, load_split, resolve_tasks
-from studio.eval.evaluation import evaluate, with_budget
+from studio.eval.evaluation import (
+    add_expert_embodiment_argument,
+    evaluate,
+    expert_embodiments_of,
+    with_budget,
+)
 
 
 def parse_policy(spec: str) -> tuple[str, str]:
@@ -107,11 +114,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
+    add_expert_embodiment_argument(parser)
     parser.add_argument("--out", default=None, help="Markdown file to write (default: print only)")
     add_data_dir_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    try:
+        experts = expert_embodiments_of(args)
+    except ValueError as err:
+        print(f"studio results: {err}", file=sys.stderr)
+        return 2
     tasks = resolve_tasks(args.scene, "held-out")
     split = load_split(args.scene)
     reports: list[tuple[str, int | str, dict]] = []
@@ -119,12 +132,14 @@ def run(args: argparse.Namespace) -> int:
     most = max(args.replan)
     for name, checkpoint in args.policy:
         print(f"== {name}, re-plans {most}", file=sys.stderr, flush=True)
-        report = evaluate(checkpoint, tasks, args.episodes, args.seed, most, args.workers, args.data_dir)
+        report = evaluate(checkpoint, tasks, args.episodes, args.seed, most, args.workers, args.data_dir,
+                          expert_embodiments=experts)  # fmt: skip
         reports += budget_rows(name, report, args.replan, split)
     table = render_markdown(reports, split.test_groups)
     machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, {platform.platform()}"
+    demos = f"; demonstrations by {', '.join(experts)}" if experts else ""
     text = (f"Held-out tasks of `{args.scene}` ({', '.join(tasks)}), {args.episodes} rollouts per task, seed "
-            f"{args.seed}; {machine}.\n\n{table}")  # fmt: skip
+            f"{args.seed}{demos}; {machine}.\n\n{table}")  # fmt: skip
     print(text)
     if args.out:
         out = Path(args.out)

@@ -199,6 +199,10 @@ class TrainConfig:
         mixup, mixup_min: asymmetric demonstration mixup with β ~ U(mixup_min, 1) and a partner of another task.
         aug_warmup: fraction of the steps trained on clean pairs (no augmentation, no mixup) before both start —
             augmentation noise lengthens the plateau before π starts reading the demonstration (docs/experiments.md).
+        expert_embodiments: the embodiments whose demonstrations make the expert side of the training pairs (a
+            comma-separated string or a list; empty: every embodiment). ``human`` trains the Panda from the
+            simulated hand's demonstrations only (Human-Franka), ``panda`` from the Panda's own (Two-Franka),
+            ``sawyer`` from the Sawyer's. The agent side is always the stored agent episodes.
         seed: every random choice of the run derives from it.
         val_every, val_batches: validation cadence (steps) and size (batches; 0 = the whole validation set).
         checkpoint_every, log_every: bookkeeping cadence in steps.
@@ -244,6 +248,7 @@ class TrainConfig:
     mixup: bool = True
     mixup_min: float = 0.3
     aug_warmup: float = 0.0
+    expert_embodiments: tuple[str, ...] = ()
     seed: int = 0
     val_every: int = 500
     val_batches: int = 20
@@ -261,6 +266,18 @@ class TrainConfig:
             raise ValueError(
                 f"train.freeze: unknown part(s) {', '.join(unknown)}; choose from {', '.join(FREEZABLE)}"
             )
+        parts = self.expert_embodiments
+        parts = parts.split(",") if isinstance(parts, str) else parts
+        self.expert_embodiments = tuple(str(p).strip() for p in parts if str(p).strip())
+        if self.expert_embodiments:
+            from studio.data.episode import EMBODIMENTS
+
+            unknown = sorted(set(self.expert_embodiments) - set(EMBODIMENTS))
+            if unknown:
+                raise ValueError(
+                    f"train.expert_embodiments: unknown embodiment(s) {', '.join(unknown)}; choose from "
+                    f"{', '.join(EMBODIMENTS)}"
+                )
         if self.batch_size < 1 or self.pairs_per_expert < 1:
             raise ValueError(
                 f"batch_size and pairs_per_expert must be >= 1, got {self.batch_size}, {self.pairs_per_expert}"

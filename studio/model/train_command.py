@@ -8,7 +8,9 @@ different ``--steps`` lengthens or shortens the resumed run (its learning-rate s
 any other change of configuration is refused. ``--restart`` starts over. ``--init CKPT`` starts a new run from
 another checkpoint's weights (fine-tuning a shipped policy on your own episodes, a second stage of a
 curriculum over task sets, or growing the full model from a ``model.world_model=false`` checkpoint: 𝒲 is added
-untrained, the way ``studio quickstart`` trains OSVI-WM). Under ``torchrun --nproc_per_node K -m studio.cli
+untrained, the way ``studio quickstart`` trains OSVI-WM). ``--set train.expert_embodiments=human`` pairs the
+Panda's agent episodes with the simulated hand's demonstrations only (``panda``: the Panda's own demonstrations;
+default: every stored demonstration). Under ``torchrun --nproc_per_node K -m studio.cli
 train ...`` it trains with K data-parallel processes.
 """
 
@@ -62,7 +64,8 @@ def scene_of(scene_or_split: str) -> str:
 
 
 def open_splits(root: str, run, scene: str, progress: bool = False):
-    """The training and validation PairDatasets of the store at ``root`` at the model's input size."""
+    """The training and validation PairDatasets of the store at ``root`` at the model's input size, their expert
+    side limited to ``train.expert_embodiments`` when it names any."""
     try:
         from studio.data.training_view import PairDataset
     except ImportError as exc:  # pragma: no cover - depends on the data package being installed
@@ -73,6 +76,7 @@ def open_splits(root: str, run, scene: str, progress: bool = False):
         n_agent=run.model.n_agent_frames,
         seed=run.train.seed,
         scene=scene,
+        expert_embodiments=run.train.expert_embodiments or None,
         progress=progress,
     )
     return PairDataset(root, "train", **kw), PairDataset(root, "val", **kw)

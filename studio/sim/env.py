@@ -18,9 +18,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco
 import numpy as np
 
-from studio.sim import rendering, robots, scenes
+from studio.sim import hand, rendering, robots, scenes
 from studio.sim.camera import CameraModel
-from studio.sim.ik import make_controller
+from studio.sim.ik import HandMocap, make_controller
 from studio.sim.metaworld_tasks import MetaWorldTask
 from studio.sim.physics_state import STATE_SPEC, check_states
 from studio.sim.tasks import Task, get_task
@@ -32,6 +32,7 @@ WORKSPACE = np.array([[-0.45, 0.12, 0.012], [0.45, 0.95, 0.55]])
 _FINGER_BODIES = {
     "panda": ("panda0_leftfinger", "panda0_rightfinger"),
     "sawyer": ("rightpad", "leftpad"),
+    "hand": ("hand_index3", "hand_thumb3"),  # the hand holds by its pinch weld (SimEnv.held_object)
 }
 
 
@@ -83,7 +84,7 @@ class SimEnv:
 
     Args:
         scene: ``"pick_place"`` or ``"push"``.
-        robot: ``"panda"`` or ``"sawyer"``.
+        robot: ``"panda"``, ``"sawyer"`` or ``"hand"``.
         image_size: (height, width) of the external camera's images.
         control_dt: seconds per control tick (one :meth:`step`).
         depth_size: (height, width) of the wrist depth camera.
@@ -108,6 +109,8 @@ class SimEnv:
         self.n_substeps = max(1, round(control_dt / self.model.opt.timestep))
         self.control_dt = self.n_substeps * self.model.opt.timestep
         self.controller = make_controller(robot, self.model)
+        # The hand grasps by a scripted pinch instead of friction between fingers.
+        self._pinch = self.controller.pinch if isinstance(self.controller, HandMocap) else None
         m = self.model
         self._site = m.site(self.robot_info.grasp_site).id
         self._finger_qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in self.robot_info.finger_joints])
@@ -206,6 +209,8 @@ class SimEnv:
         self.gripper_cmd = float(np.clip(g, 0.0, 1.0))
         self.controller.command(self.data, self.target, self.control_dt)
         self.data.ctrl[self._finger_act] = self.robot_info.finger_ctrl(self.gripper_cmd)
+        if self._pinch is not None:
+            self._pinch.update(self.data, self.gripper_cmd)
         mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
         self.steps += 1
         if not self._ever["grasped"]:  # once grasped, reached is recorded too: nothing left to track
@@ -217,6 +222,11 @@ class SimEnv:
         return self.data.site_xpos[self._site].copy()
 
     def gripper_opening(self) -> float:
+        if self.robot == "hand":
+            tips = [
+                self.data.site_xpos[self.model.site(s).id] for s in (hand.INDEX_TIP_SITE, hand.THUMB_TIP_SITE)
+            ]
+            return float(np.linalg.norm(tips[0] - tips[1]))
         q = self.data.qpos[self._finger_qadr]
         if self.robot == "panda":
             return float(q[0] + q[1])
@@ -227,7 +237,9 @@ class SimEnv:
         return {o: self.data.qpos[a : a + 7].copy() for o, a in self._obj_qadr.items()}
 
     def held_object(self) -> str | None:
-        """The object both fingers touch, if any."""
+        """The object both fingers touch, if any (for the hand: the object its pinch holds)."""
+        if self._pinch is not None:
+            return self._pinch.held(self.data)
         touching: dict[str, set[int]] = {}
         d = self.data
         for i in range(d.ncon):

@@ -1,4 +1,4 @@
-"""Scripted experts for every tabletop task on both robots, as attributed-waypoint plans.
+"""Scripted experts for every tabletop task on every robot (the arms and the hand), as attributed-waypoint plans.
 
 An expert reads the true object and target poses after reset and writes the five waypoints a perfect
 planner would: for pick-and-place grasp → lift → carry above the target → place (release) → retreat;
@@ -20,6 +20,8 @@ from studio.sim.waypoints import ControllerConfig, WaypointController
 LIFT_Z = 0.15
 PUSH_Z = 0.03
 PUSH_BEHIND = 0.09  # grasp site distance from the box centre when starting a push (open fingers clear it)
+# The hand's open fingers and thumb reach 6 cm from its grasp site (the grippers' 4 cm), so it starts further off.
+PUSH_BEHIND_OF_ROBOT = {"hand": 0.115}
 PUSH_THROUGH = 0.18  # where the grasp site ends, beyond the box centre
 
 
@@ -45,7 +47,7 @@ def expert_waypoints(env: SimEnv) -> np.ndarray:
         )
     sign = 1.0 if task.target == "forward" else -1.0
     z = max(PUSH_Z, min_z)
-    start = obj[1] - sign * PUSH_BEHIND
+    start = obj[1] - sign * PUSH_BEHIND_OF_ROBOT.get(env.robot, PUSH_BEHIND)
     end = obj[1] + sign * PUSH_THROUGH
     return np.array(
         [

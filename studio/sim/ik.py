@@ -1,10 +1,12 @@
-"""Arm controllers that make the grasp site track a Cartesian target, for both robots.
+"""Controllers that make the grasp site track a Cartesian target, for the arms and the hand.
 
 * :class:`PandaIK` — mink differential IK on a robot-only copy of the model (so the QP never sees the
   objects' free joints): a frame task on the grasp site (position + top-down orientation), a light
   posture task for the null space, configuration and velocity limits. Its joint velocities are
   integrated into the joint position actuators' set-points.
 * :class:`SawyerMocap` — moves the mocap body welded to the Sawyer's hand, with a bounded speed.
+* :class:`HandMocap` — the same for the human hand (:mod:`studio.sim.hand`), whose mocap body is welded to the
+  hand body on its slide joints.
 
 Both bound how fast the target may move, so a target dragged far away, out of reach or into the table
 makes the arm move there at a safe speed and stop at the closest reachable pose, never a NaN.
@@ -16,7 +18,7 @@ import mink
 import mujoco
 import numpy as np
 
-from studio.sim import robots
+from studio.sim import hand, robots
 from studio.sim.scenes import build_robot_model
 
 #: Largest grasp-site speed a controller will command, m/s.
@@ -155,5 +157,37 @@ class SawyerMocap:
         data.mocap_quat[self.mocap_id] = _SAWYER_QUAT
 
 
-def make_controller(robot: str, sim_model: mujoco.MjModel):
-    return PandaIK(sim_model) if robot == "panda" else SawyerMocap(sim_model)
+class HandMocap:
+    """Moves the human hand by its welded mocap body; owns the hand's scripted pinch (``pinch``)."""
+
+    def __init__(self, sim_model: mujoco.MjModel):
+        self.info = robots.HAND
+        self.mocap_id = sim_model.body(hand.MOCAP_BODY).mocapid[0]
+        self.root_qadr = np.array([sim_model.jnt_qposadr[sim_model.joint(j).id] for j in hand.ROOT_JOINTS])
+        self.pinch = hand.PinchGrasp(sim_model)
+        self.home = hand.HOME.copy()
+        self.cmd = self.home.copy()
+
+    def reset(self, data: mujoco.MjData) -> None:
+        # The hand body's origin is the grasp site, so its slide joints are the grasp site's world position.
+        self.cmd = self.home.copy()
+        data.qpos[self.root_qadr] = self.home
+        data.mocap_pos[self.mocap_id] = self.home
+        data.mocap_quat[self.mocap_id] = [1.0, 0.0, 0.0, 0.0]
+
+    def command(self, data: mujoco.MjData, target: np.ndarray, dt: float) -> None:
+        self.cmd = _rate_limit(self.cmd, np.asarray(target, dtype=np.float64), MAX_EE_SPEED * dt)
+        data.mocap_pos[self.mocap_id] = self.cmd
+
+    def sync(self, data: mujoco.MjData) -> None:
+        """Take over from a restored state: continue from its mocap position, re-apply its grasp."""
+        self.cmd = data.mocap_pos[self.mocap_id].copy()
+        self.pinch.refresh(data)
+
+
+def make_controller(robot: str, sim_model: mujoco.MjModel) -> PandaIK | SawyerMocap | HandMocap:
+    if robot == "panda":
+        return PandaIK(sim_model)
+    if robot == "hand":
+        return HandMocap(sim_model)
+    return SawyerMocap(sim_model)

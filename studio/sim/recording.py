@@ -13,6 +13,27 @@ import numpy as np
 
 from studio.sim.camera import CameraModel
 
+#: The simulated robots and the embodiment their episodes are stored under (:mod:`studio.data.episode`): the
+#: hand's are ``"human"``, like uploaded videos of people.
+EMBODIMENT_OF_ROBOT: dict[str, str] = {"panda": "panda", "sawyer": "sawyer", "hand": "human"}
+
+
+def embodiment_of(robot: str) -> str:
+    """The embodiment a robot's recordings are stored under (``"human"`` for the hand)."""
+    try:
+        return EMBODIMENT_OF_ROBOT[robot]
+    except KeyError:
+        raise ValueError(f"unknown robot {robot!r}; choose from {tuple(EMBODIMENT_OF_ROBOT)}") from None
+
+
+def robot_of(embodiment: str) -> str:
+    """The simulated robot whose recordings have ``embodiment`` (the hand for ``"human"``)."""
+    for robot, emb in EMBODIMENT_OF_ROBOT.items():
+        if emb == embodiment:
+            return robot
+    raise ValueError(f"no simulated robot has the embodiment {embodiment!r}")
+
+
 #: Names and per-step shapes of the arrays every recording carries (T = number of control steps).
 ARRAY_FIELDS: dict[str, str] = {
     "time": "(T,) float64, seconds since reset",
@@ -31,7 +52,7 @@ class Recording:
 
     Attributes:
         scene: scene family, e.g. ``"pick_place"``.
-        robot: ``"panda"`` or ``"sawyer"``.
+        robot: ``"panda"``, ``"sawyer"`` or ``"hand"``.
         task: full task name, e.g. ``"pick_place/cube->red"``.
         seed: the seed the scene was reset with.
         success: the task's success predicate at the end of the episode.

@@ -1,14 +1,20 @@
-"""The two arms: a Franka Panda (the agent) and a Sawyer with its two-finger gripper (the expert).
+"""The demonstrators and the agent: a Franka Panda, a Sawyer with its two-finger gripper, and a human hand.
 
-Both are loaded from files that ship inside installed packages — the Panda from
-``gymnasium_robotics``'s kitchen Franka assets, the Sawyer from ``metaworld``'s assets — and composed
-into a scene at load time (:mod:`studio.sim.scenes`). Nothing third-party is copied into this repo.
+The two arms are loaded from files that ship inside installed packages — the Panda from
+``gymnasium_robotics``'s kitchen Franka assets, the Sawyer from ``metaworld``'s assets — and the hand is written
+in :mod:`studio.sim.hand`; each is composed into a scene at load time (:mod:`studio.sim.scenes`). Nothing
+third-party is copied into this repo.
 
 * Panda: joint position actuators on the 7 arm joints (driven by differential IK, :mod:`studio.sim.ik`),
   position actuators on the two fingers, gravity compensation on every body.
 * Sawyer: metaworld's arm has no joint actuators; a weld from a mocap body holds its hand, so the hand
   is commanded by moving the mocap body (this tracked best and grasped reliably in our measurements).
   Its fingers are position actuated.
+* Hand (``"hand"``, embodiment ``"human"``): a capsule hand with forearm on three slide joints, welded to a
+  mocap body like the Sawyer's hand; the gripper command curls its fingers into a pinch, and a grasp is a
+  scripted weld (:class:`studio.sim.hand.PinchGrasp`).
+
+The Sawyer and the hand demonstrate (role ``expert``), the Panda imitates (``agent``) and can demonstrate too.
 
 Each robot exposes a *grasp site* at the point between its fingertips (the end-effector point used for
 every target, label and recorded path) and a wrist depth camera looking along the gripper axis.
@@ -22,7 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROBOTS = ("panda", "sawyer")
+from studio.sim import hand
+from studio.sim.recording import EMBODIMENT_OF_ROBOT
+
+ROBOTS = tuple(EMBODIMENT_OF_ROBOT)
 
 
 def package_dir(name: str) -> Path:
@@ -38,10 +47,10 @@ class RobotInfo:
     """What the simulator needs to know about an arm.
 
     Attributes:
-        name: ``"panda"`` or ``"sawyer"``.
+        name: ``"panda"``, ``"sawyer"`` or ``"hand"``.
         control: ``"joints"`` (IK → joint position actuators) or ``"mocap"`` (move the welded mocap body).
-        arm_joints: names of the arm's joints, base to wrist.
-        finger_joints: names of the finger slide joints.
+        arm_joints: names of the arm's joints, base to wrist (the hand's: its three slide joints).
+        finger_joints: names of the finger joints (slides of the grippers, hinges of the hand).
         finger_actuators: names of the finger actuators.
         grasp_site: the site between the fingertips.
         wrist_camera: the depth camera on the hand.
@@ -62,6 +71,8 @@ class RobotInfo:
     def finger_ctrl(self, gripper: float) -> np.ndarray:
         """Actuator controls for a gripper command in [0, 1] (0 open, 1 closed)."""
         g = float(np.clip(gripper, 0.0, 1.0))
+        if self.name == "hand":
+            return g * hand.CLOSED_POSE
         if self.name == "panda":
             return np.array([0.04 * (1.0 - g), 0.04 * (1.0 - g)])
         a = 2.0 * g - 1.0
@@ -107,11 +118,26 @@ SAWYER = RobotInfo(
 )
 
 
+HAND = RobotInfo(
+    name="hand",
+    control="mocap",
+    arm_joints=hand.ROOT_JOINTS,
+    finger_joints=hand.FINGER_JOINTS,
+    finger_actuators=hand.FINGER_ACTUATORS,
+    grasp_site=hand.GRASP_SITE,
+    wrist_camera="wrist",
+    body_prefix=("hand",),
+    max_opening=0.11,
+)
+
+
 def robot_info(name: str) -> RobotInfo:
     if name == "panda":
         return PANDA
     if name == "sawyer":
         return SAWYER
+    if name == "hand":
+        return HAND
     raise ValueError(f"unknown robot {name!r}; choose from {ROBOTS}")
 
 
@@ -123,6 +149,8 @@ TOP_DOWN = np.array([[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
 
 def robot_xml(name: str) -> str:
     """An MJCF fragment set (assets, worldbody, actuators, equality) for the robot, absolute paths only."""
+    if name == "hand":
+        return hand.hand_xml()
     if name == "panda":
         franka = package_dir("gymnasium_robotics") / "envs/assets/kitchen_franka/franka_assets"
         return f"""
@@ -154,9 +182,12 @@ def robot_xml(name: str) -> str:
     raise ValueError(f"unknown robot {name!r}; choose from {ROBOTS}")
 
 
-def finish_spec(spec, info: RobotInfo) -> None:
-    """Edits the parsed spec before compiling: grasp site, wrist camera, gravity compensation, gains."""
-    if info.name == "panda":
+def finish_spec(spec, info: RobotInfo, scene: str | None = None) -> None:
+    """Edits the parsed spec before compiling: grasp site, wrist camera, gravity compensation, gains; for the
+    hand its grasp welds and contacts, which depend on the ``scene`` (None: the robot alone)."""
+    if info.name == "hand":
+        hand.finish_spec(spec, scene)
+    elif info.name == "panda":
         link7 = spec.body("panda0_link7")
         # Between the fingertip pads, on the gripper axis; x/y axes as in TOP_DOWN's convention
         # (y = finger closing direction).
@@ -177,10 +208,10 @@ def finish_spec(spec, info: RobotInfo) -> None:
             act.biasprm[1] = -kp
             act.forcerange = [-20.0, 20.0]
     else:
-        hand = spec.body("hand")
+        sawyer_hand = spec.body("hand")
         # The hand's +x axis is the gripper axis; the pads (centred on the hand origin) close along hand y.
-        hand.add_site(name="grasp_site", pos=[0.0, 0, 0], size=[0.006, 0, 0])
-        hand.add_camera(name="wrist", pos=[-0.04, 0, 0], xyaxes=[0, 1, 0, 0, 0, -1], fovy=75)
+        sawyer_hand.add_site(name="grasp_site", pos=[0.0, 0, 0], size=[0.006, 0, 0])
+        sawyer_hand.add_camera(name="wrist", pos=[-0.04, 0, 0], xyaxes=[0, 1, 0, 0, 0, -1], fovy=75)
     for body in spec.bodies:
         if body.name.startswith(info.body_prefix):
             body.gravcomp = 1.0

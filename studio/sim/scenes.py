@@ -86,7 +86,7 @@ def build_model(scene: str, robot: str) -> mujoco.MjModel:
     """Compile the scene with the robot: gravity compensation, grasp site and wrist camera included."""
     info = robots.robot_info(robot)
     spec = mujoco.MjSpec.from_string(compose_xml(scene, robot))
-    robots.finish_spec(spec, info)
+    robots.finish_spec(spec, info, scene)
     return spec.compile()
 
 

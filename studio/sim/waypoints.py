@@ -81,7 +81,9 @@ class ControllerConfig:
     correct_grasp_height: bool = True
     close_ticks: int = 18
     open_ticks: int = 12
-    min_grasp_z: dict[str, float] = field(default_factory=lambda: {"panda": 0.045, "sawyer": 0.045})
+    min_grasp_z: dict[str, float] = field(
+        default_factory=lambda: {"panda": 0.045, "sawyer": 0.045, "hand": 0.02}
+    )
 
 
 @dataclass

@@ -51,3 +51,15 @@ def test_replay_refuses_an_episode_without_robot_state(tmp_path):
         store.add_episode(ep)
         with pytest.raises(ValueError, match="no robot state"):
             EpisodeReplay(store, meta.id)
+
+
+def test_replay_of_a_hand_demonstration_moves_the_hand(tmp_path):
+    rec = record_expert("pick_place", "hand", "pick_place/cube->red", 2, (60, 80), 20)
+    with EpisodeStore(tmp_path) as store:
+        meta = store.add_episode(rec, role="expert", source="scripted")
+        assert meta.embodiment == "human"
+        replay = EpisodeReplay(store, meta.id)
+    hand = replay.geometry.body_names.index("hand")
+    for t in (0, replay.num_steps // 2, replay.num_steps - 1):
+        # The hand body's origin is its grasp site (recorded one physics step apart, as for the arms).
+        np.testing.assert_allclose(replay.poses_at(t)[hand, :3], rec.arrays["ee_pos_world"][t], atol=2e-3)

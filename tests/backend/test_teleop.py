@@ -221,3 +221,19 @@ def test_metaworld_session_follows_the_task_model(site):
         frame = client.poses.wait_until(lambda f: f.body_count == len(other.body_names), 5.0)
         assert frame is not None
         assert client.geometry().body_names == other.body_names
+
+
+def test_hand_recordings_are_human_demonstrations(site):
+    hub, _ = site
+    before = {m.id for m in hub.store.episodes()}
+    with TeleopClient(hub.session, "sim-local") as client:
+        client.open("pick_place", "hand", TASK, seed=6)
+        client.start_recording()
+        start = np.asarray(client.poses.wait_until(lambda f: True, 5.0).ee_pos)
+        drive(client, start + np.array([0.0, 0.05, -0.05]), gripper=1.0, ticks=30)
+        saved = client.stop_recording(timeout=120)
+        assert isinstance(saved, msg.EpisodeSaved), saved
+        assert saved.role == "expert"
+    (meta,) = [m for m in hub.store.episodes() if m.id not in before]
+    assert (meta.embodiment, meta.role, meta.source, meta.seed) == ("human", "expert", "teleop", 6)
+    assert meta.has_arrays

@@ -139,3 +139,38 @@ def test_runs_checkpoints_rollouts(tmp_path):
         cat._conn.execute("DELETE FROM runs WHERE id = 'run1'")
     assert cat.checkpoints() == []
     assert len(cat.rollouts()) == 5 and all(r.checkpoint_id is None for r in cat.rollouts())
+
+
+def test_collection_slots_are_per_role(tmp_path):
+    cat = Catalog(tmp_path / "c.sqlite")
+    agent = _meta(seed=1, source="scripted", collect_seed=0, collect_index=2)
+    expert = _meta(seed=2, role="expert", source="scripted", collect_seed=0, collect_index=2)
+    with cat.transaction():
+        cat.insert_episode(agent)
+        cat.insert_episode(expert)  # the same slot as the agent's, for another role
+    with pytest.raises(sqlite3.IntegrityError), cat.transaction():
+        cat.insert_episode(_meta(seed=3, source="scripted", collect_seed=0, collect_index=2))
+    task = "pick_place/cube->red"
+    assert cat.filled_slots(task, "panda", 0, "expert") == cat.filled_slots(task, "panda", 0, "agent") == {2}
+    assert cat.filled_slots(task, "panda", 1, "agent") == set()
+    assert cat.filled_slots(task, "panda", 0) == {2}
+
+
+def test_a_catalog_with_slots_without_roles_is_widened_on_open(tmp_path):
+    path = tmp_path / "c.sqlite"
+    Catalog(path).close()
+    conn = sqlite3.connect(path)
+    conn.execute("DROP INDEX episodes_by_role_slot")
+    conn.execute(
+        "CREATE UNIQUE INDEX episodes_by_slot ON episodes(task, embodiment, collect_seed, collect_index) "
+        "WHERE collect_index IS NOT NULL"
+    )
+    conn.commit()
+    conn.close()
+    cat = Catalog(path)
+    names = {r[0] for r in cat._conn.execute("SELECT name FROM sqlite_master WHERE type = 'index'")}
+    assert "episodes_by_role_slot" in names and "episodes_by_slot" not in names
+    with cat.transaction():
+        cat.insert_episode(_meta(seed=1, source="scripted", collect_seed=0, collect_index=0))
+        cat.insert_episode(_meta(seed=2, role="expert", source="scripted", collect_seed=0, collect_index=0))
+    assert len(cat.episodes()) == 2

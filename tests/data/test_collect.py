@@ -35,6 +35,10 @@ def test_resolve_tasks():
 def test_config_validation():
     with pytest.raises(ValueError, match="robot"):
         CollectConfig(robot="ur5")
+    with pytest.raises(ValueError, match="only demonstrates"):
+        CollectConfig(robot="hand", role="agent")
+    with pytest.raises(ValueError, match="role"):
+        CollectConfig(robot="panda", role="teacher")
     with pytest.raises(ValueError, match="20 frames"):
         CollectConfig(min_frames=10)
 
@@ -134,3 +138,47 @@ def test_cli(tmp_path, capsys):
     assert (meta.embodiment, meta.role) == ("panda", "agent")
     assert main([*argv[:4], "pick_place/cube->purple", *argv[5:]]) == 2
     assert "unknown task" in capsys.readouterr().err
+
+
+def test_roles_and_embodiments_of_a_run():
+    assert (CollectConfig(robot="sawyer").episode_role, CollectConfig(robot="sawyer").embodiment) == (
+        "expert",
+        "sawyer",
+    )
+    hand = CollectConfig(robot="hand")
+    assert (hand.episode_role, hand.embodiment, hand.seed_key) == ("expert", "human", "hand")
+    agent, expert = CollectConfig(robot="panda"), CollectConfig(robot="panda", role="expert")
+    assert (agent.episode_role, agent.seed_key) == ("agent", "panda")  # the seeds of existing runs are kept
+    assert (expert.episode_role, expert.seed_key) == ("expert", "panda:expert")
+
+
+def test_hand_collects_human_demonstrations(tmp_path):
+    cfg = CollectConfig(
+        robot="hand", tasks=[TASK], episodes=2, image_size=(48, 64), data_dir=str(tmp_path), progress=False
+    )
+    assert collect(cfg).made == 2
+    store = EpisodeStore(tmp_path)
+    metas = store.episodes()
+    assert all((m.role, m.embodiment, m.source) == ("expert", "human", "scripted") for m in metas)
+    assert all(m.success and m.seed is not None and m.has_arrays for m in metas)
+    _, _, arrays = store.load_arrays(metas[0].id)
+    assert arrays["qpos"].shape[1] == 18  # three slide joints, fifteen finger joints
+    assert arrays["gripper_cmd"].max() == 1.0
+    assert collect(cfg).made == 0  # resumes: its slots are the hand's
+
+
+def test_panda_as_expert_beside_panda_as_agent(tmp_path, capsys):
+    from studio.cli import main
+
+    argv = ["collect", "--robot", "panda", "--tasks", TASK, "--episodes", "1", "--image-size", "48", "64",
+            "--data-dir", str(tmp_path), "--no-progress"]  # fmt: skip
+    assert main([*argv, "--role", "expert"]) == 0
+    assert main(argv) == 0
+    assert main([*argv, "--role", "expert"]) == 0  # already there
+    assert "collected 0 episodes" in capsys.readouterr().out.splitlines()[-1]
+    metas = {m.role: m for m in EpisodeStore(tmp_path).episodes()}
+    assert set(metas) == {"expert", "agent"}
+    assert metas["expert"].embodiment == metas["agent"].embodiment == "panda"
+    assert metas["expert"].collect_index == metas["agent"].collect_index == 0
+    assert metas["expert"].seed != metas["agent"].seed
+    assert main(["collect", "--robot", "hand", "--role", "agent", "--data-dir", str(tmp_path)]) == 2

@@ -91,3 +91,12 @@ def test_files_round_trip(tmp_path):
         3,
         ["cube", "cylinder"],
     )
+
+
+def test_hand_recordings_are_human_episodes_with_robot_state():
+    ep = Episode.from_recording(make_recording(robot="hand", seed=4), role="expert", source="scripted")
+    assert (ep.meta.embodiment, ep.meta.role, ep.meta.seed) == ("human", "expert", 4)
+    assert ep.meta.has_arrays
+    assert ep.to_recording().robot == "hand"  # the simulated hand replays it
+    with pytest.raises(EpisodeError, match="human"):
+        Episode.from_recording(make_recording(robot="hand"), role="agent", source="scripted")

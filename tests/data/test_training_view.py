@@ -83,6 +83,37 @@ def test_pairs_same_task_expert_and_agent(store):
         assert sorted(agents) == sorted({int(x) for x, t in zip(a, ds.pair_tasks) if ds.tasks[t] == task})
 
 
+def test_hand_demonstrations_pair_with_panda_agents_alone(store):
+    # The simulated hand's demonstrations (embodiment "human", with robot state) and a Panda demonstration.
+    for i, task in enumerate((T1, T1, T1, T2, T2, T2)):
+        store.add_episode(
+            make_recording(task=task, robot="hand", seed=200 + i), role="expert", source="scripted"
+        )
+    store.add_episode(make_recording(task=T1, robot="panda", seed=300), role="expert", source="scripted")
+    # Which episodes are held out for validation depends on their (random) ids: look at both splits.
+    both = [_dataset(store, split) for split in ("train", "val")]
+    assert {m.embodiment for d in both for m in d.episodes if m.role == "expert"} == {
+        "sawyer",
+        "human",
+        "panda",
+    }
+    experts = set()
+    for split in ("train", "val"):
+        ds = _dataset(store, split, expert_embodiments=["human"])
+        for ei, ai in ds.pairs:
+            me, ma = ds.episodes[ei], ds.episodes[ai]
+            assert (me.role, me.embodiment) == ("expert", "human") and (ma.role, ma.embodiment) == (
+                "agent",
+                "panda",
+            )
+            assert me.task == ma.task
+            experts.add(me.id)
+    assert len(experts) == 7  # the six hand demonstrations and T2's uploaded video
+    panda = [_dataset(store, split, expert_embodiments=["panda"]) for split in ("train", "val")]
+    assert sum(len(d) for d in panda) > 0
+    assert {d.episodes[e].embodiment for d in panda for e in d.pairs[:, 0]} == {"panda"}
+
+
 def test_sample_contract(store):
     ds = _dataset(store)
     H, W = SIZE

@@ -100,3 +100,13 @@ def test_a_split_file_names_its_scene(tmp_path):
     split = tmp_path / "mine.json"
     split.write_text(json.dumps({"scene": "metaworld", "train": ["metaworld/reach-v3"], "test": []}))
     assert scene_of(str(split)) == "metaworld" and scene_of("push") == "push"
+
+
+def test_expert_embodiments_parse_and_are_checked():
+    assert preset("cpu").train.expert_embodiments == ()
+    run = preset("cpu").with_overrides(["train.expert_embodiments=human"])
+    assert run.train.expert_embodiments == ("human",)
+    assert TrainConfig(expert_embodiments="human, panda").expert_embodiments == ("human", "panda")
+    assert RunConfig.from_dict(run.to_dict()).train.expert_embodiments == ("human",)
+    with pytest.raises(ValueError, match=r"expert_embodiments.*robot"):
+        TrainConfig(expert_embodiments="robot")

@@ -144,3 +144,26 @@ def test_repeated_set_flags_all_apply():
         "--data", "x", "--out", "y", "--set", "train.val_every=7", "--set", "model.action_attention=cross"
     )
     assert args.set == ["train.val_every=7", "model.action_attention=cross"]
+
+
+def test_open_splits_limits_the_expert_side_to_the_configured_embodiments(tmp_path):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
+    from data_fixtures import make_recording
+
+    from studio.data.store import EpisodeStore
+    from studio.model.config import preset
+
+    store = EpisodeStore(tmp_path)
+    for i, (role, robot) in enumerate([("expert", "sawyer"), ("expert", "hand"), ("agent", "panda")] * 4):
+        store.add_episode(make_recording(robot=robot, seed=i), role=role, source="scripted")
+    run = preset("cpu").with_overrides(["model.image_size=[24, 32]", "train.expert_embodiments=human"])
+    train_set, _ = train_command.open_splits(str(tmp_path), run, "pick_place")
+    experts = {train_set.episodes[e].embodiment for e in train_set.pairs[:, 0]}
+    assert experts == {"human"} and len(train_set) > 0
+    everyone, _ = train_command.open_splits(
+        str(tmp_path), preset("cpu").with_overrides(TINY[:1]), "pick_place"
+    )
+    assert {everyone.episodes[e].embodiment for e in everyone.pairs[:, 0]} == {"sawyer", "human"}

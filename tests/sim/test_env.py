@@ -7,7 +7,7 @@ from studio.sim.env import WORKSPACE
 from studio.sim.recording import ARRAY_FIELDS
 
 
-@pytest.mark.parametrize("robot", ["panda", "sawyer"])
+@pytest.mark.parametrize("robot", ["panda", "sawyer", "hand"])
 def test_settles_on_static_target(env_factory, robot):
     env = env_factory("pick_place", robot)
     env.reset("pick_place/cube->red", 0)
@@ -17,7 +17,7 @@ def test_settles_on_static_target(env_factory, robot):
     assert np.linalg.norm(env.ee_pos - target) < 0.005
 
 
-@pytest.mark.parametrize("robot", ["panda", "sawyer"])
+@pytest.mark.parametrize("robot", ["panda", "sawyer", "hand"])
 def test_follows_moving_target(env_factory, robot):
     env = env_factory("push", robot)
     env.reset("push/red-forward", 0)
@@ -32,7 +32,7 @@ def test_follows_moving_target(env_factory, robot):
     assert np.mean(errors) < 0.02 and np.max(errors) < 0.04
 
 
-@pytest.mark.parametrize("robot", ["panda", "sawyer"])
+@pytest.mark.parametrize("robot", ["panda", "sawyer", "hand"])
 def test_unreachable_and_invalid_targets_stay_finite(env_factory, robot):
     env = env_factory("pick_place", robot)
     env.reset("pick_place/cube->red", 0)

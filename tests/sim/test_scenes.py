@@ -1,4 +1,4 @@
-"""Scene composition: both robots in both scenes, with the properties the simulator relies on."""
+"""Scene composition: every robot in both scenes, with the properties the simulator relies on."""
 
 import mujoco
 import numpy as np
@@ -8,7 +8,7 @@ from studio.sim import robots, scenes
 
 
 @pytest.mark.parametrize("scene", ["pick_place", "push"])
-@pytest.mark.parametrize("robot", ["panda", "sawyer"])
+@pytest.mark.parametrize("robot", ["panda", "sawyer", "hand"])
 def test_robot_loads_in_scene(scene, robot):
     model = scenes.build_model(scene, robot)
     info = robots.robot_info(robot)
@@ -22,6 +22,8 @@ def test_robot_loads_in_scene(scene, robot):
     assert robot_bodies and all(model.body_gravcomp[b.id] == 1.0 for b in robot_bodies)
     if robot == "sawyer":
         assert model.nmocap == 1
+    elif robot == "hand":
+        assert model.nmocap == 1 and model.nu == 15
     else:
         assert model.nu == 9
 

@@ -31,9 +31,12 @@ from studio.sim.tasks import list_tasks
 HINTS = """**Drag the gizmo** at the gripper to move the arm (IK runs on the sim worker);
 *Open* / *Close* the gripper. **Record** resets the scene to its seed and starts an episode;
 **Stop & save** stores it (success is pre-filled by the task's check — override it if you disagree);
-**Discard** drops it. Sawyer recordings are expert demonstrations, Panda recordings agent trajectories."""
+**Discard** drops it. Sawyer and human-hand recordings are expert demonstrations (the hand's stored as
+`human`; it grasps by pinching an object between thumb and index), Panda recordings agent trajectories."""
 
 SCENES = ("pick_place", "push", "metaworld")
+#: Robots of the tabletop scenes (Meta-World has the Sawyer only).
+TABLETOP_ROBOTS = ("sawyer", "panda", "hand")
 PREVIEW_HZ = 5.0
 #: The camera frustum in the 3D view shows the live image this often; the panel's preview (PREVIEW_HZ) is the
 #: live view. Each new frustum image is a new WebGL texture and opens a settle window of redraws: without a GPU
@@ -78,8 +81,9 @@ class TeleopPanel:
         gui.add_markdown(HINTS)
         scenes = tuple(s for s in SCENES if scene_tasks(s))
         self.scene = gui.add_dropdown("Scene", scenes, initial_value=scenes[0])
-        self.robot = gui.add_dropdown("Robot", ("sawyer", "panda"), initial_value="sawyer",
-                                      hint="Sawyer: expert demonstrations; Franka Panda: agent trajectories")  # fmt: skip
+        self.robot = gui.add_dropdown("Robot", TABLETOP_ROBOTS, initial_value="sawyer",
+                                      hint="Sawyer or a human hand: expert demonstrations; Franka Panda: agent "
+                                           "trajectories")  # fmt: skip
         tasks = scene_tasks(scenes[0])
         self.task = gui.add_dropdown("Task", tuple(tasks), initial_value=tasks[0])
         self.seed = gui.add_number(
@@ -508,7 +512,7 @@ class TeleopPanel:
         tasks = scene_tasks(scene)
         self.task.options = tuple(tasks)
         self.task.value = tasks[0]
-        self.robot.options = ("sawyer",) if scene == "metaworld" else ("sawyer", "panda")
+        self.robot.options = ("sawyer",) if scene == "metaworld" else TABLETOP_ROBOTS
         if self.robot.value not in self.robot.options:
             self.robot.value = "sawyer"
 
