@@ -32,7 +32,11 @@ def _scripted_episode(env, task: str, seed: int):
 
 @pytest.mark.parametrize(
     ("scene", "robot", "task"),
-    [("pick_place", "panda", "pick_place/cube->red"), ("push", "sawyer", "push/red-forward")],
+    [
+        ("pick_place", "panda", "pick_place/cube->red"),
+        ("push", "sawyer", "push/red-forward"),
+        ("pick_place", "hand", "pick_place/cube->red"),  # mid-episode the cube is held by the pinch weld
+    ],
 )
 def test_stepping_on_from_a_restored_tick_repeats_the_episode_bit_for_bit(env_factory, scene, robot, task):
     env = env_factory(scene, robot)
@@ -42,6 +46,8 @@ def test_stepping_on_from_a_restored_tick_repeats_the_episode_bit_for_bit(env_fa
     states = np.stack(rec.states)
     env.restore(task, 3, states[: k + 1], gripper_cmd=rec.rows[k]["gripper_cmd"])
     assert env.steps == k
+    if robot == "hand":
+        assert env.held_object() == "cube", "the restored pinch still holds the cube"
     now = np.empty(state_size(env.model))
     mujoco.mj_getState(env.model, env.data, now, STATE_SPEC)
     np.testing.assert_array_equal(now, states[k])
