@@ -484,7 +484,7 @@ def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     failed = studio.store.catalog.rollouts(success=False, checkpoint_id="fixture-run/best")
     first = ins.rollout.options[0]
     assert first.startswith(failed[0].id) and failed[0].failure_stage in first
-    _click_until(page, page.get_by_role("button", name="Open", exact=True), "Stages:")
+    _click_until(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
     assert tab.mode == "replay"
     steps = ins.replay.num_steps
     ins.timeline.slider.value = steps // 2
@@ -782,7 +782,7 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     shown = (
         ins.replay
     )  # an earlier test may have opened it: wait for this Open's replay (it resets the timeline)
-    _click_until_done(page.get_by_role("button", name="Open", exact=True),
+    _click_until_done(page.get_by_role("button", name="Open", exact=True).first,
                       lambda: _wait(lambda: ins.replay is not shown and ins.record.id == failed.id, 30, "the replay"))  # fmt: skip
     page.get_by_text("No episode was forked from this rollout yet").first.wait_for(timeout=30_000)
     k = 40  # the arm is on its way to the misaimed grasp
@@ -882,11 +882,11 @@ def test_a_rollout_whose_scene_no_longer_loads_says_so(studio, page, shots, monk
 
     with monkeypatch.context() as m:  # the scene file is gone: replaying needs it
         m.setattr(scenes, "build_model", gone)
-        _click(page.get_by_role("button", name="Open", exact=True))
+        _click(page.get_by_role("button", name="Open", exact=True).first)
         page.get_by_text("cannot be replayed: its scene does not load here").first.wait_for(timeout=60_000)
     _shot(page, shots / "inspect-scene-gone.png")
     # The scene loads again, but its model changed since the rollout: the fork is refused with the reason.
-    _click_until(page, page.get_by_role("button", name="Open", exact=True), "Stages:")
+    _click_until(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
     path = Path(failed.path) / STATES_FILE
     kept = path.read_bytes()
     try:
