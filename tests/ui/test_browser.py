@@ -769,6 +769,7 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     while the bar is held; the recording continues on the restarted worker → saved, linked to the rollout."""
     import signal
 
+    from studio.data.forks import fork_source
     from studio.sim.env import SimEnv
     from studio.sim.experts import expert_waypoints
 
@@ -793,19 +794,25 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     _wait(lambda: tp._recording and tab.mode == "teleop" and tp.info.robot == "panda", 60, "the fork session",
           lambda: _teleop_state(tab))  # fmt: skip
     assert (tp.info.task, tp.info.seed) == (failed.task, failed.seed)
-    # A pose of the forked session (the arm holds still where the rollout had it: nothing commands it yet).
+    # A pose of the forked session. Nothing commands the arm yet, so from the restored tick it moves as the
+    # rollout's physics state carries it (the arm was moving at tick k): exactly as a local restore stepped on
+    # with the target held, however many ticks the session ran before this pose was seen.
     first = tp.client.poses.wait_until(lambda f: f.body_count == len(tp.info.body_names) and f.step >= k, 10)
     assert first is not None, f"no pose of the forked scene; {_teleop_state(tab)}"
-    np.testing.assert_allclose(first.ee_pos, ins.replay.arrays["ee_pos_world"][k], atol=5e-3,
-                               err_msg=f"step {first.step}; {_teleop_state(tab)}")  # fmt: skip
+    src = studio.store.catalog.get_rollout(failed.id)
+    fs = fork_source(studio.store, src.id, k)
+    with SimEnv("pick_place", "panda", control_dt=fs.control_dt) as env:
+        env.restore(fs.task, fs.seed, fs.states, fs.gripper)
+        # The arm the replay showed at tick k (it moves under a millimetre a tick).
+        np.testing.assert_allclose(env.ee_pos, ins.replay.arrays["ee_pos_world"][k], atol=2e-3)
+        for _ in range(first.step - k):
+            env.step(env.target, env.gripper_cmd)
+        np.testing.assert_allclose(first.ee_pos, env.ee_pos, atol=1e-6,
+                                   err_msg=f"step {first.step}; {_teleop_state(tab)}")  # fmt: skip
     _shot(page, shots / "fork-restored.png")
 
     # The correction a person would drag: above the bar, down, grasp, up, over the blue target, down, release.
-    src = studio.store.catalog.get_rollout(failed.id)
     with SimEnv("pick_place", "panda") as env:
-        from studio.data.forks import fork_source
-
-        fs = fork_source(studio.store, src.id, k)
         env.restore(fs.task, fs.seed, fs.states, fs.gripper)
         grasp, lift, carry, place, _ = expert_waypoints(env)
 
