@@ -22,6 +22,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "collect": ("studio.data.collect", "collect scripted expert/agent episodes in parallel (resumable)"),
     "import-video": ("studio.data.video_import", "store a human demonstration video as an expert episode"),
+    "export-video": (
+        "studio.data.video_export",
+        "write a stored episode's frames as an MP4 (any size and frame rate, its timing kept)",
+    ),
     "export": ("studio.data.export_command", "export episodes as a LeRobot v3.0 dataset"),
     "import": ("studio.data.import_command", "import trajectories from a LeRobot v3.0 dataset"),
     "serve": ("studio.ui.serve", "start the browser studio and print its URL"),

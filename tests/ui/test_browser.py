@@ -700,6 +700,101 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
 
 
 @pytest.mark.slow
+def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_panda(
+    studio, page, shots, tmp_path
+):
+    """The upload path end to end: the simulated hand demonstrates the held-out push task, its episode is exported
+    as an MP4 at another size and frame rate (as a camera would film it), uploaded in *Upload*, saved as a
+    demonstration of the task, then planned and executed in *Imitate* by the shipped push policy. The outcome is
+    whatever the model does with it: success or a named failure stage."""
+    from studio.data.video import probe_video
+    from studio.data.video_export import export_episode_video
+
+    tab = _tab(studio)
+    im, upload = tab.imitate, tab.upload
+    push = studio.runs.active("push")
+    assert push.id == "default/push-cpu", "the shipped push policy plans push"
+
+    # The simulated hand's scripted demonstration (an `expert` job on the sim worker, as Imitate's button makes).
+    job = studio.jobs.submit("expert", {"task": PUSH_HELD_OUT, "seed": 1003, "robot": "hand"})
+    _wait(lambda: job.terminal and job.result, 120, "the hand's demonstration", lambda: job.status)
+    hand = studio.store.get(job.result["episode_id"])
+    assert (hand.task, hand.embodiment, hand.role, hand.height, hand.width) == (PUSH_HELD_OUT, "human", "expert",
+                                                                                240, 320)  # fmt: skip
+    video = tmp_path / "hand-push.mp4"
+    export_episode_video(studio.store, hand.id, video, size=(180, 240), fps=24.0)
+    info = probe_video(video)
+    assert (
+        (info.height, info.width) == (180, 240)
+        and abs(info.fps - 24.0) < 1e-6
+        and abs(info.fps - hand.fps) > 5
+    )
+
+    # Upload it as a user does: the task shown, the file, the filmstrip, Save.
+    _open_tab(page, "Upload", "Upload a video")
+    _click_until_done(page.get_by_role("combobox", name="Task shown"),
+                      lambda: page.get_by_role("option", name=PUSH_HELD_OUT, exact=True).wait_for(timeout=10_000))  # fmt: skip
+    _click(page.get_by_role("option", name=PUSH_HELD_OUT, exact=True))
+    _wait(lambda: upload.task.value == PUSH_HELD_OUT, 20, "the task shown", lambda: upload.task.value)
+    before = {m.id for m in studio.store.episodes(source="upload")}
+    page.locator("input[type=file]").first.set_input_files(str(video))
+    _wait(lambda: upload.pending is not None, 90, "the upload to be decoded", lambda: upload.status.content)
+    page.get_by_text("Check the task above").first.wait_for(timeout=60_000)
+    assert "hand-push.mp4" in upload.status.content and upload.strip.visible
+    time.sleep(1.0)  # let the browser draw the filmstrip
+    _shot(page, shots / "upload-hand-filmstrip.png", scroll_to="The 10 frames the model will see")
+    _click(page.get_by_role("button", name="Save as expert demonstration"))
+    page.get_by_text("as an expert demonstration of").first.wait_for(timeout=60_000)
+    (up,) = [m for m in studio.store.episodes(source="upload") if m.id not in before]
+    assert (up.task, up.embodiment, up.role, up.source) == (PUSH_HELD_OUT, "human", "expert", "upload")
+    assert up.extra["source_size"] == [180, 240] and up.extra["original_name"] == "hand-push.mp4"
+
+    # Imitate: the uploaded demonstration, planned and executed by the shipped push policy.
+    _open_tab(page, "Imitate", "Choose a")
+    im.task.value = PUSH_HELD_OUT + " (held-out)"
+    _wait(lambda: f"**push** tasks: `{push.id}`" in im.policy.content, 20, "the push policy line",
+          lambda: im.policy.content)  # fmt: skip
+    page.get_by_text("default/push-cpu").first.wait_for(timeout=30_000)
+    option = f"{up.id} · upload · human"
+    _wait(
+        lambda: option in im.demo.options, 30, "the upload among the demonstrations", lambda: im.demo.options
+    )
+    _click_until_done(page.get_by_role("combobox", name="Demonstration"),
+                      lambda: page.get_by_role("option", name=option, exact=True).wait_for(timeout=10_000))  # fmt: skip
+    _click(page.get_by_role("option", name=option, exact=True))
+    _wait(lambda: im.demo_id() == up.id, 20, "the upload to be selected", lambda: im.demo.value)
+    im.seed.value = 3
+    before_plan = im.plan_job
+    _click(page.get_by_role("button", name="Plan", exact=True))
+    plan = _wait(lambda: im.plan_job is not before_plan and im.plan_job, 30, "a new plan job")
+    assert plan.spec["expert_episode_id"] == up.id and plan.spec["checkpoint"] == push.path
+    assert plan.spec["task"] == PUSH_HELD_OUT
+    _wait(lambda: plan.terminal and plan.result is not None, 120, "the plan", lambda: im.status.content)
+    page.get_by_text("Planned in").first.wait_for(timeout=60_000)
+    assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
+    time.sleep(1.0)  # let the browser draw the plan and the expert frames
+    _shot(page, shots / "imitate-upload-plan.png", scroll_to="Policy for")
+    _shot(page, shots / "imitate-upload-expert-frames.png", scroll_to="Expert frames the model sees")
+    im.speed.value = "as fast as possible"
+    _click(page.get_by_role("button", name="Execute", exact=True))
+    rollout = _wait(lambda: im.rollout is not None and im.rollout.spec.get("expert_episode_id") == up.id and
+                    im.rollout, 30, "the rollout of the upload")  # fmt: skip
+    assert rollout.spec["checkpoint_id"] == push.id
+    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
+    result = _wait(lambda: rollout.result, 30, "the rollout's result")
+    time.sleep(1.0)
+    _shot(page, shots / "imitate-upload-outcome.png", scroll_to="re-plan(s); rollout")
+    outcome = "success" if result["success"] else f"failed at {result['failure_stage']}"
+    print(f"\nthe Panda imitating the uploaded hand video of {PUSH_HELD_OUT}: {outcome}")
+    assert result["success"] or result["failure_stage"], result
+    assert (
+        "✔ Success" if result["success"] else f"✘ Failed at {result['failure_stage']}"
+    ) in im.outcome.content
+    row = [r for r in studio.store.catalog.rollouts(task=PUSH_HELD_OUT) if r.id == result["rollout_id"]]
+    assert row and row[0].checkpoint_id == push.id
+
+
+@pytest.mark.slow
 def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shots):
     """Meta-World in the browser: choose the scene in the Teleop tab's dropdown (the robot choice narrows to the
     Sawyer), drag the arm, record and save; the Imitate tab then offers the recording as a demonstration of its
