@@ -106,3 +106,18 @@ def checkpoint_scene(path: str | os.PathLike) -> str | None:
     if not isinstance(tasks, (list, tuple)):
         return None
     return scene_of_tasks(tasks)
+
+
+def checkpoint_demonstrators(path: str | os.PathLike) -> tuple[str, ...]:
+    """The embodiments whose demonstrations the checkpoint at ``path`` learnt to imitate: its configuration's
+    ``train.expert_embodiments``. Empty when it names none (it trained on every expert demonstration of its data,
+    which the file does not list) or the file cannot be read."""
+    try:
+        config = read_checkpoint_info(path).get("config")
+    except (OSError, ValueError):
+        return ()
+    train = config.get("train") if isinstance(config, dict) else None
+    named = train.get("expert_embodiments") if isinstance(train, dict) else None
+    if not isinstance(named, (list, tuple)):
+        return ()
+    return tuple(str(e) for e in named)

@@ -7,9 +7,11 @@ checkpoint file under ``studio/policies/`` (or the file named by ``STUDIO_DEFAUL
 Every checkpoint knows the scene it was trained on: the scene of the tasks recorded in the file itself
 (:func:`studio.model.checkpoint_info.checkpoint_scene`, read without torch), so it cannot drift from what the
 model learnt. The active policy is per scene: a task is planned with the user's choice for its scene if there is
-one (the oracle, or a checkpoint trained on that scene), else the first shipped policy of that scene by name, else
-the *oracle* planner, labelled as what it is: the execution ceiling, not the model. A checkpoint trained on one
-scene never plans another scene's task: choosing it for another scene is refused with the reason.
+one (the oracle, or a checkpoint trained on that scene), else the first shipped policy of that scene by name (the
+first trained on the demonstrator's embodiment when one is: a human video is imitated by the policy that learnt
+from human demonstrations), else the *oracle* planner, labelled as what it is: the execution ceiling, not the
+model. A checkpoint trained on one scene never plans another scene's task: choosing it for another scene is
+refused with the reason.
 
 The user's choices are kept in ``<data-dir>/ui/active_checkpoint.json`` (``{"scenes": {scene: id}, "id": the
 latest}``) so that they survive restarts and are shared by every tab. A file from before per-scene choices,
@@ -27,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from studio.data.paths import SHIPPED_POLICY_DIR, SHIPPED_RUN_ID, SHIPPED_RUN_NAME
-from studio.model.checkpoint_info import checkpoint_scene
+from studio.model.checkpoint_info import checkpoint_demonstrators, checkpoint_scene
 
 RUNS_DIR = "runs"
 ACTIVE_FILE = "ui/active_checkpoint.json"
@@ -53,6 +55,8 @@ class Checkpoint:
     step: int | None = None
     summary: str = ""  # a shipped policy's measured results in one line (``NAME.json``), shown beside it
     scene: str | None = None  # the scene it was trained on (None: the oracle, or a file that does not say)
+    #: the embodiments whose demonstrations it learnt to imitate (empty: not recorded)
+    demonstrators: tuple[str, ...] = ()
 
     @property
     def is_oracle(self) -> bool:
@@ -152,13 +156,25 @@ def _shipped(policy: Path) -> Checkpoint:
     """A shipped policy, with the one-line summary of its measured results from ``NAME.json`` if present (so
     that nobody mistakes a weak default policy for a good one)."""
     try:
-        summary = json.loads(policy.with_suffix(".json").read_text()).get("summary")
-    except (FileNotFoundError, json.JSONDecodeError, AttributeError):
-        summary = None
+        about = json.loads(policy.with_suffix(".json").read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        about = {}
+    about = about if isinstance(about, dict) else {}
+    summary = about.get("summary")
     summary = summary if isinstance(summary, str) else ""
+    # Who demonstrated its training pairs: the file's configuration, else what its NAME.json says.
+    listed = about.get("demonstrators")
+    demonstrators = checkpoint_demonstrators(policy) or (
+        tuple(str(e) for e in listed) if isinstance(listed, list) else ()
+    )
     label = f"shipped policy {policy.stem}" + (f" — {summary}" if summary else "")
     return Checkpoint(
-        f"default/{policy.stem}", str(policy), label, summary=summary, scene=checkpoint_scene(policy)
+        f"default/{policy.stem}",
+        str(policy),
+        label,
+        summary=summary,
+        scene=checkpoint_scene(policy),
+        demonstrators=demonstrators,
     )
 
 
@@ -255,13 +271,20 @@ class RunRegistry:
         ck = next((c for c in self.checkpoints() if c.id == chosen), None)
         return {ck.scene: chosen} if ck is not None and ck.scene is not None else {}
 
-    def shipped_for(self, scene: str) -> Checkpoint | None:
-        """The first shipped policy (by name) trained on ``scene``."""
-        return next((c for c in self.default_policies() if c.scene == scene), None)
+    def shipped_for(self, scene: str, demonstrator: str | None = None) -> Checkpoint | None:
+        """The first shipped policy (by name) trained on ``scene``; with ``demonstrator`` (an embodiment), the first
+        one trained on that embodiment's demonstrations if one is shipped."""
+        of_scene = [c for c in self.default_policies() if c.scene == scene]
+        if demonstrator is not None:
+            same = next((c for c in of_scene if demonstrator in c.demonstrators), None)
+            if same is not None:
+                return same
+        return of_scene[0] if of_scene else None
 
-    def active(self, scene: str) -> Checkpoint:
+    def active(self, scene: str, demonstrator: str | None = None) -> Checkpoint:
         """The policy that plans ``scene``'s tasks: the user's choice for that scene if it still exists, else the
-        scene's shipped policy, else the oracle.
+        scene's shipped policy (the one trained on ``demonstrator``'s demonstrations when that embodiment is
+        given and such a policy is shipped), else the oracle.
 
         Raises :class:`SceneMismatch` when the user's choice for ``scene`` was trained on another scene: it is
         not run, and not silently replaced either."""
@@ -273,7 +296,7 @@ class RunRegistry:
                     f"{mismatch_reason(chosen, scene)}; choose a policy for {scene} in Train (Scene: {scene})"
                 )
             return chosen
-        return self.shipped_for(scene) or ORACLE_CHOICE
+        return self.shipped_for(scene, demonstrator) or ORACLE_CHOICE
 
     def set_active(self, checkpoint_id: str, scene: str | None = None) -> Checkpoint:
         """Make ``checkpoint_id`` the active policy of ``scene`` (None: of the scene it was trained on; the

@@ -93,6 +93,7 @@ class ImitatePanel:
                                           label="Predicted latent trajectory (decoded)", visible=False)  # fmt: skip
         self.latent_note = gui.add_markdown("")
         self.task.on_update(lambda e: (self._fill_demos(), self._show_policy()))
+        self.demo.on_update(lambda e: self._show_policy())  # a human video may have its own policy
         self.scripted.on_click(lambda _: tab.run(self.make_scripted, "making a scripted demonstration"))
         buttons.on_click(self._on_button)
         self.watch.on_click(lambda _: tab.run(self._watch_other, "watching the rollout"))
@@ -102,28 +103,40 @@ class ImitatePanel:
     def task_name(self) -> str:
         return self.labels[self.task.value]
 
-    def policy_for(self, task: str) -> Checkpoint:
-        """The active policy of ``task``'s scene; raises ``SceneMismatch`` (a ``ValueError``, shown as a
-        notification) when the choice for that scene was trained on another one."""
-        return self.app.runs.active(task.split("/", 1)[0])
+    def demonstrator(self) -> str | None:
+        """The embodiment of the chosen demonstration (``human``, ``sawyer``, ``panda``); None without one."""
+        parts = self.demo.value.split(" · ")
+        return parts[-1] if len(parts) >= 3 else None
 
-    def policy_text(self, task: str) -> str:
-        """The policy line: which policy plans ``task`` (its scene's), and why that one."""
+    def policy_for(self, task: str, demonstrator: str | None = None) -> Checkpoint:
+        """The active policy of ``task``'s scene for a demonstration by ``demonstrator`` (see
+        :meth:`studio.ui.runs.RunRegistry.active`); raises ``SceneMismatch`` (a ``ValueError``, shown as a
+        notification) when the choice for that scene was trained on another one."""
+        return self.app.runs.active(task.split("/", 1)[0], demonstrator)
+
+    def policy_text(self, task: str, demonstrator: str | None = None) -> str:
+        """The policy line: which policy plans ``task`` (its scene's) from a ``demonstrator``'s demonstration,
+        and why that one."""
         scene = task.split("/", 1)[0]
         head = f"Policy for **{scene}** tasks:"
         try:
-            ck = self.policy_for(task)
+            ck = self.policy_for(task, demonstrator)
         except SceneMismatch as e:
             return f"{head} ✘ {e}. Plan and Execute refuse to run it."
         chosen = self.app.runs.chosen_ids().get(scene) == ck.id
         if ck.is_oracle:
             why = "chosen in Train" if chosen else f"no policy for {scene} is shipped or chosen in Train"
             return f"{head} **oracle — execution ceiling** (plans from the simulator's true state, not a model; {why})"
-        origin = " (chosen in Train)" if chosen else ""
+        if chosen:
+            origin = " (chosen in Train)"
+        elif demonstrator is not None and demonstrator in ck.demonstrators:
+            origin = f" (learnt from {demonstrator} demonstrations, like this one)"
+        else:
+            origin = ""
         return f"{head} `{ck.id}`{origin}" + (f" — {ck.summary}" if ck.summary else "")
 
     def _show_policy(self) -> None:
-        text = self.policy_text(self.task_name)
+        text = self.policy_text(self.task_name, self.demonstrator())
         if self._shown.get("policy") != text:
             self._shown["policy"] = text
             self.policy.content = text
@@ -180,7 +193,7 @@ class ImitatePanel:
 
     def plan(self):
         task, seed, demo = self.task_name, int(self.seed.value), self.demo_id()
-        ck = self.policy_for(task)
+        ck = self.policy_for(task, self.demonstrator())
         self._show_scene(task, seed, f"Plan for **{task}**, seed {seed}.")
         self.tab.view.clear_overlay("plan")
         self.latent_strip.visible = False  # the previous plan's images must not pass for this one's
@@ -228,7 +241,7 @@ class ImitatePanel:
 
     def execute(self):
         task, seed, demo = self.task_name, int(self.seed.value), self.demo_id()
-        ck = self.policy_for(task)
+        ck = self.policy_for(task, self.demonstrator())
         replans = int(self.replans.value)
         spec = {"checkpoint": ck.path, "checkpoint_id": ck.id, "expert_episode_id": demo, "task": task,
                 "seed": seed, "replans": replans, "robot": self._robot(task), "speed": SPEEDS[self.speed.value]}  # fmt: skip

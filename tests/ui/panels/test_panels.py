@@ -52,7 +52,7 @@ def test_the_imitate_policy_line_names_the_policy_of_the_tasks_scene(tmp_path):
     (policies / "push-cpu.json").write_text('{"summary": "99 % on the unseen push task"}')
     reg = RunRegistry(tmp_path / "data", policy_dir=policies)
     panel = SimpleNamespace(app=SimpleNamespace(runs=reg))
-    panel.policy_for = lambda task: ImitatePanel.policy_for(panel, task)
+    panel.policy_for = lambda task, who=None: ImitatePanel.policy_for(panel, task, who)
     line = lambda task: ImitatePanel.policy_text(panel, task)  # noqa: E731
     assert line("push/blue-backward") == (
         "Policy for **push** tasks: `default/push-cpu` — 99 % on the unseen push task"
@@ -71,6 +71,53 @@ def test_the_imitate_policy_line_names_the_policy_of_the_tasks_scene(tmp_path):
         "push tasks"
     )
     assert line("push/blue-backward").endswith("Plan and Execute refuse to run it.")
+
+
+def test_a_demonstration_is_imitated_by_the_shipped_policy_that_learnt_from_its_demonstrator(tmp_path):
+    import json
+    import pickle
+    import zipfile
+
+    from studio.ui.panels.imitate import ImitatePanel
+    from studio.ui.runs import RunRegistry
+
+    policies = tmp_path / "policies"
+    policies.mkdir()
+    shipped = {  # name: (demonstrators in the file's configuration, in its NAME.json)
+        "push-cpu": ((), ["sawyer"]),
+        "push-human-demos": (("human",), None),
+        "push-panda-demos": (("panda",), None),
+    }
+    for name, (configured, listed) in shipped.items():
+        info = {"tasks": ["push/red-forward"], "config": {"train": {"expert_embodiments": configured}}}
+        with zipfile.ZipFile(policies / f"{name}.pt", "w") as zf:
+            zf.writestr(f"{name}/data.pkl", pickle.dumps(info))
+        if listed is not None:
+            (policies / f"{name}.json").write_text(json.dumps({"summary": "", "demonstrators": listed}))
+    reg = RunRegistry(tmp_path / "data", policy_dir=policies)
+    by_id = {c.id: c.demonstrators for c in reg.default_policies()}
+    assert by_id == {"default/push-cpu": ("sawyer",), "default/push-human-demos": ("human",),
+                     "default/push-panda-demos": ("panda",)}  # fmt: skip
+    demo = SimpleNamespace(value="(none)")
+    panel = SimpleNamespace(app=SimpleNamespace(runs=reg), demo=demo)
+    panel.demonstrator = lambda: ImitatePanel.demonstrator(panel)
+    panel.policy_for = lambda task, who=None: ImitatePanel.policy_for(panel, task, who)
+    chosen = {}
+    for value in ("(none)", "e1 · upload · human", "e2 · scripted · panda", "e3 · teleop · sawyer"):
+        demo.value = value
+        chosen[panel.demonstrator()] = panel.policy_for("push/blue-backward", panel.demonstrator()).id
+    assert chosen == {None: "default/push-cpu", "human": "default/push-human-demos",
+                      "panda": "default/push-panda-demos", "sawyer": "default/push-cpu"}  # fmt: skip
+    demo.value = "e1 · upload · human"
+    assert ImitatePanel.policy_text(panel, "push/x", "human") == (
+        "Policy for **push** tasks: `default/push-human-demos` (learnt from human demonstrations, like this one)"
+    )
+    # No shipped policy learnt from Meta-World's demonstrator here: the scene's first is used, unchanged.
+    assert reg.active("push", "nobody").id == "default/push-cpu"
+    # The user's choice for the scene wins over the demonstrator.
+    reg.set_active("default/push-panda-demos", "push")
+    assert reg.active("push", "human").id == "default/push-panda-demos"
+    assert "(chosen in Train)" in ImitatePanel.policy_text(panel, "push/x", "human")
 
 
 def test_a_forked_episode_says_where_it_came_from():
