@@ -1,4 +1,4 @@
-"""Suite-wide pytest hooks.
+"""Suite-wide pytest hooks, and the fixtures several test directories share.
 
 The ``slow`` marker (pyproject.toml: "takes more than ~20 s") lets ``./run test -m "not slow"`` be a quick
 run. So that the marker keeps up with the tests, the terminal summary lists tests that took longer than that
@@ -7,6 +7,7 @@ run. So that the marker keeps up with the tests, the terminal summary lists test
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 SLOW_S = 20.0
@@ -28,3 +29,18 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
     terminalreporter.write_sep("-", f"over {SLOW_S:.0f} s without @pytest.mark.slow (consider marking them)")
     for seconds, nodeid in late:
         terminalreporter.write_line(f"{seconds:7.1f} s  {nodeid}")
+
+
+class _MissPlanner:
+    """Plans empty air beside the pick-and-place objects: a rollout that fails at the reach stage."""
+
+    def plan(self, expert_frames, agent_frame, K, T_world_cam):
+        wps = np.array([[0.3, 0.8, 0.1, 1], [0.3, 0.8, 0.15, 1], [0.3, 0.8, 0.15, 0], [0.3, 0.8, 0.15, 0],
+                        [0.3, 0.8, 0.2, 0]], dtype=float)  # fmt: skip
+        return type("Plan", (), {"waypoints_world": wps})()
+
+
+@pytest.fixture(scope="session")
+def miss_planner() -> _MissPlanner:
+    """A planner whose rollouts fail at the reach stage (for tests that need a failed rollout to inspect)."""
+    return _MissPlanner()

@@ -31,24 +31,15 @@ pytestmark = pytest.mark.timeout(240)
 TASK = "pick_place/bar->blue"
 
 
-class Miss:
-    """Plans empty air beside the bar: a rollout that fails at the reach stage."""
-
-    def plan(self, expert_frames, agent_frame, K, T_world_cam):
-        wps = np.array([[0.3, 0.8, 0.1, 1], [0.3, 0.8, 0.15, 1], [0.3, 0.8, 0.15, 0], [0.3, 0.8, 0.15, 0],
-                        [0.3, 0.8, 0.2, 0]], dtype=float)  # fmt: skip
-        return type("P", (), {"waypoints_world": wps})()
-
-
 @pytest.fixture(scope="module")
-def site(tmp_path_factory):
+def site(tmp_path_factory, miss_planner):
     """A hub whose store holds one failed rollout, and a factory of sim workers sharing its data directory."""
     tmp = tmp_path_factory.mktemp("forking")
     port = bus.free_loopback_port()
     hub = Hub(bus.BusConfig.hub([bus.loopback_endpoint(port)]), data_dir=tmp / "data")
     env = SimEnv("pick_place", "panda")
     try:
-        out = run_rollout(env, Miss(), np.zeros((10, 240, 320, 3), np.uint8), TASK, 7)
+        out = run_rollout(env, miss_planner, np.zeros((10, 240, 320, 3), np.uint8), TASK, 7)
     finally:
         env.close()
     record = store_rollout(hub.store, out, expert_episode_id=None, checkpoint_id=None)

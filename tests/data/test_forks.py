@@ -18,22 +18,13 @@ from studio.sim.physics_state import STATE_SPEC, state_size
 TASK = "pick_place/bar->blue"
 
 
-class Miss:
-    """Plans empty air: a rollout that fails at the reach stage."""
-
-    def plan(self, expert_frames, agent_frame, K, T_world_cam):
-        wps = np.array([[0.3, 0.8, 0.1, 1], [0.3, 0.8, 0.15, 1], [0.3, 0.8, 0.15, 0], [0.3, 0.8, 0.15, 0],
-                        [0.3, 0.8, 0.2, 0]], dtype=float)  # fmt: skip
-        return type("P", (), {"waypoints_world": wps})()
-
-
 @pytest.fixture(scope="module")
-def stored(tmp_path_factory):
+def stored(tmp_path_factory, miss_planner):
     root = tmp_path_factory.mktemp("forks")
     env = SimEnv("pick_place", "panda")
     frames = np.zeros((10, 240, 320, 3), np.uint8)
     try:
-        failed = run_rollout(env, Miss(), frames, TASK, 5)
+        failed = run_rollout(env, miss_planner, frames, TASK, 5)
         solved = run_rollout(env, OraclePlanner(env), frames, TASK, 5)
     finally:
         env.close()
