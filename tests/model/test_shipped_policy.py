@@ -1,5 +1,6 @@
 """The policies shipped in ``studio/policies``: small enough, with their decoders, each planning a held-out task of
-the scene it was trained on (pick-and-place or push)."""
+the scene it was trained on (pick-and-place or push) from a demonstration by the demonstrator it learnt from (the
+Sawyer, the simulated human hand or the Panda)."""
 
 from __future__ import annotations
 
@@ -13,11 +14,24 @@ from studio.data.splits import load_split
 from studio.data.store import EpisodeStore
 from studio.model.checkpoint_info import checkpoint_scene
 from studio.sim.env import WORKSPACE
+from studio.sim.recording import robot_of
+from studio.ui.runs import RunRegistry
 
 torch.set_num_threads(1)
 POLICIES = sorted(f for f in SHIPPED_POLICY_DIR.glob("*.pt") if not f.name.endswith(".decoder.pt"))
 PICK_PLACE = [p for p in POLICIES if checkpoint_scene(p) == "pick_place"]
 PUSH = [p for p in POLICIES if checkpoint_scene(p) == "push"]
+#: Who demonstrated each policy's training pairs (its file's configuration, else its JSON file).
+DEMONSTRATORS = {
+    c.path: c.demonstrators for c in RunRegistry("unused", policy_dir=SHIPPED_POLICY_DIR).default_policies()
+}
+
+
+def demonstrator_args(policy) -> list[str]:
+    """``studio collect`` arguments that record a demonstration by the demonstrator ``policy`` learnt from."""
+    (embodiment,) = DEMONSTRATORS[str(policy)] or ("sawyer",)
+    robot = robot_of(embodiment)
+    return ["--robot", robot] + (["--role", "expert"] if robot == "panda" else [])
 
 
 def test_a_policy_ships_with_its_decoder_and_within_the_size_limit():
@@ -30,25 +44,37 @@ def test_a_policy_ships_with_its_decoder_and_within_the_size_limit():
         )
     assert PICK_PLACE and PUSH, "a pick-and-place and a push policy ship"
     assert len(PICK_PLACE) + len(PUSH) == len(POLICIES), "every shipped policy names its scene (by its tasks)"
+    for policy in POLICIES:
+        assert len(DEMONSTRATORS[str(policy)]) == 1, f"{policy.name} does not say who demonstrated to it"
 
 
 @pytest.fixture(scope="module")
-def demos(tmp_path_factory):
-    """One scripted Sawyer demonstration of each held-out pick-and-place task, collected as a user would."""
-    root = tmp_path_factory.mktemp("store")
-    tasks = list(load_split("pick_place").test)
-    assert main(["collect", "--robot", "sawyer", "--tasks", *tasks, "--episodes", "1", "--seed", "5",
-                 "--data-dir", str(root), "--no-progress"]) == 0  # fmt: skip
-    with EpisodeStore(root) as store:
-        return {t: store.load_frames(store.episodes(task=t)[0].id) for t in tasks}
+def demos_by(tmp_path_factory):
+    """One scripted demonstration of each held-out pick-and-place task by the demonstrator a policy learnt from,
+    collected as a user would (once per demonstrator)."""
+    collected: dict[tuple[str, ...], dict[str, np.ndarray]] = {}
+
+    def demos(policy) -> dict[str, np.ndarray]:
+        args = demonstrator_args(policy)
+        if tuple(args) not in collected:
+            root = tmp_path_factory.mktemp("store")
+            tasks = list(load_split("pick_place").test)
+            assert main(["collect", *args, "--tasks", *tasks, "--episodes", "1", "--seed", "5",
+                         "--data-dir", str(root), "--no-progress"]) == 0  # fmt: skip
+            with EpisodeStore(root) as store:
+                collected[tuple(args)] = {t: store.load_frames(store.episodes(task=t)[0].id) for t in tasks}
+        return collected[tuple(args)]
+
+    return demos
 
 
 @pytest.mark.parametrize("policy", PICK_PLACE, ids=lambda p: p.stem)
-def test_the_shipped_policy_plans_a_held_out_task(policy, demos):
+def test_the_shipped_policy_plans_a_held_out_task(policy, demos_by):
     from studio.model.planner import Planner
     from studio.sim.env import SimEnv
     from studio.sim.waypoints import gripper_flags
 
+    demos = demos_by(policy)
     planner = Planner.load(policy)
     releases = []
     with SimEnv("pick_place", "panda") as env:
@@ -69,7 +95,7 @@ def test_the_shipped_policy_plans_a_held_out_task(policy, demos):
 
 
 @pytest.mark.parametrize("policy", PICK_PLACE, ids=lambda p: p.stem)
-def test_the_shipped_policy_grasps_the_demonstrated_object_wherever_it_lies(policy, demos):
+def test_the_shipped_policy_grasps_the_demonstrated_object_wherever_it_lies(policy, demos_by):
     """Objects are shuffled in every scene, so one demonstration must lead to different grasp points in different
     scenes: the nearest object to the grasp is the demonstrated one (chance: one in four), not whatever lies where
     the demonstration grasped."""
@@ -77,6 +103,7 @@ def test_the_shipped_policy_grasps_the_demonstrated_object_wherever_it_lies(poli
     from studio.model.planner import Planner
     from studio.sim.env import SimEnv
 
+    demos = demos_by(policy)
     planner = Planner.load(policy)
     picked, grasps = [], []
     with SimEnv("pick_place", "panda") as env:
@@ -97,15 +124,16 @@ def test_the_shipped_policy_grasps_the_demonstrated_object_wherever_it_lies(poli
 
 @pytest.mark.parametrize("policy", PUSH, ids=lambda p: p.stem)
 def test_the_shipped_push_policy_pushes_the_demonstrated_box_backward(policy, tmp_path):
-    """The unseen push task (blue box, backward) from one scripted Sawyer demonstration: in every scene (the boxes
-    swap slots) the push starts behind the blue box, not the red one, and moves it towards the robot (-y)."""
+    """The unseen push task (blue box, backward) from one scripted demonstration by the policy's demonstrator: in
+    every scene (the boxes swap slots) the push starts behind the blue box, not the red one, and moves it towards
+    the robot (-y)."""
     from studio.model.planner import Planner
     from studio.sim.env import SimEnv
 
     (task,) = load_split("push").test
     assert task == "push/blue-backward"
-    assert main(["collect", "--scene", "push", "--robot", "sawyer", "--tasks", task, "--episodes", "1", "--seed", "5",
-                 "--data-dir", str(tmp_path), "--no-progress"]) == 0  # fmt: skip
+    assert main(["collect", "--scene", "push", *demonstrator_args(policy), "--tasks", task, "--episodes", "1",
+                 "--seed", "5", "--data-dir", str(tmp_path), "--no-progress"]) == 0  # fmt: skip
     with EpisodeStore(tmp_path) as store:
         frames = store.load_frames(store.episodes(task=task)[0].id)
     planner = Planner.load(policy)

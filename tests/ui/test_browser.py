@@ -705,15 +705,18 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
 ):
     """The upload path end to end: the simulated hand demonstrates the held-out push task, its episode is exported
     as an MP4 at another size and frame rate (as a camera would film it), uploaded in *Upload*, saved as a
-    demonstration of the task, then planned and executed in *Imitate* by the shipped push policy. The outcome is
-    whatever the model does with it: success or a named failure stage."""
+    demonstration of the task, then planned and executed in *Imitate* by the shipped push policy that learnt from
+    human demonstrations (measured at 100 % on this task), which must succeed."""
     from studio.data.video import probe_video
     from studio.data.video_export import export_episode_video
 
     tab = _tab(studio)
     im, upload = tab.imitate, tab.upload
-    push = studio.runs.active("push")
-    assert push.id == "default/push-cpu", "the shipped push policy plans push"
+    push = studio.runs.active("push", "human")
+    assert push.id == "default/push-human-demos", (
+        "a human demonstration is planned by the human-trained policy"
+    )
+    assert studio.runs.active("push").id == "default/push-cpu", "the scene's default policy is unchanged"
 
     # The simulated hand's scripted demonstration (an `expert` job on the sim worker, as Imitate's button makes).
     job = studio.jobs.submit("expert", {"task": PUSH_HELD_OUT, "seed": 1003, "robot": "hand"})
@@ -749,12 +752,9 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     assert (up.task, up.embodiment, up.role, up.source) == (PUSH_HELD_OUT, "human", "expert", "upload")
     assert up.extra["source_size"] == [180, 240] and up.extra["original_name"] == "hand-push.mp4"
 
-    # Imitate: the uploaded demonstration, planned and executed by the shipped push policy.
+    # Imitate: the uploaded demonstration, planned and executed by the push policy that learnt from people.
     _open_tab(page, "Imitate", "Choose a")
     im.task.value = PUSH_HELD_OUT + " (held-out)"
-    _wait(lambda: f"**push** tasks: `{push.id}`" in im.policy.content, 20, "the push policy line",
-          lambda: im.policy.content)  # fmt: skip
-    page.get_by_text("default/push-cpu").first.wait_for(timeout=30_000)
     option = f"{up.id} · upload · human"
     _wait(
         lambda: option in im.demo.options, 30, "the upload among the demonstrations", lambda: im.demo.options
@@ -763,6 +763,9 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
                       lambda: page.get_by_role("option", name=option, exact=True).wait_for(timeout=10_000))  # fmt: skip
     _click(page.get_by_role("option", name=option, exact=True))
     _wait(lambda: im.demo_id() == up.id, 20, "the upload to be selected", lambda: im.demo.value)
+    _wait(lambda: f"**push** tasks: `{push.id}` (learnt from human demonstrations, like this one)"
+          in im.policy.content, 20, "the policy line of a human demonstration", lambda: im.policy.content)  # fmt: skip
+    page.get_by_text("default/push-human-demos").first.wait_for(timeout=30_000)
     im.seed.value = 3
     before_plan = im.plan_job
     _click(page.get_by_role("button", name="Plan", exact=True))
@@ -786,10 +789,8 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     _shot(page, shots / "imitate-upload-outcome.png", scroll_to="re-plan(s); rollout")
     outcome = "success" if result["success"] else f"failed at {result['failure_stage']}"
     print(f"\nthe Panda imitating the uploaded hand video of {PUSH_HELD_OUT}: {outcome}")
-    assert result["success"] or result["failure_stage"], result
-    assert (
-        "✔ Success" if result["success"] else f"✘ Failed at {result['failure_stage']}"
-    ) in im.outcome.content
+    assert result["success"], result
+    assert "✔ Success" in im.outcome.content
     row = [r for r in studio.store.catalog.rollouts(task=PUSH_HELD_OUT) if r.id == result["rollout_id"]]
     assert row and row[0].checkpoint_id == push.id
 
