@@ -880,12 +880,16 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
         ins.replay
     )  # an earlier test may have opened it: wait for this Open's replay (it resets the timeline)
     _click_until_done(page.get_by_role("button", name="Open", exact=True).first,
-                      lambda: _wait(lambda: ins.replay is not shown and ins.record.id == failed.id, 30, "the replay"))  # fmt: skip
+                      lambda: _wait(lambda: ins.replay is not shown and ins.record.id == failed.id, 90, "the replay"))  # fmt: skip
+    # A click repeated because the first open was slow opens the rollout again later, resetting the timeline to
+    # step 0: wait until no open is queued before moving it.
+    _wait(lambda: "opening the rollout" not in tab.actions, 120, "every queued Open", lambda: tab.actions)
     page.get_by_text("No episode was forked from this rollout yet").first.wait_for(timeout=30_000)
     k = 40  # the arm is on its way to the misaimed grasp
     ins.timeline.slider.value = k
     _wait(lambda: f"Step {k} of" in ins.plan_info.content, 30, "the timeline to move")
     before = {m.id for m in studio.store.episodes()}
+    assert "opening the rollout" not in tab.actions and f"Step {k} of" in ins.plan_info.content
     _click_until(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
     _wait(lambda: tp._recording and tab.mode == "teleop" and tp.info.robot == "panda", 60, "the fork session",
           lambda: _teleop_state(tab))  # fmt: skip
