@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +19,7 @@ from studio.backend import bus
 from studio.backend.episode_transfer import EpisodeSink
 from studio.backend.jobs import JobClient, JobQueue
 from studio.backend.presence import Directory
+from studio.stopping import StopSignals
 
 JOURNAL_NAME = "jobs/queue.json"
 
@@ -107,17 +106,16 @@ def run(args: argparse.Namespace) -> int:
     except bus.BusError as e:
         print(f"studio hub: {e}", file=sys.stderr)
         return 1
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    signals = StopSignals("studio hub")
     workers = None
     try:
         if args.workers == "default":
             workers = start_embedded_workers(hub)
         print(f"studio hub ready on {', '.join(config.listen)} (data: {hub.data_dir})", flush=True)
-        stop.wait()
+        signals.wait_for_stop()
     finally:
-        if workers is not None:
-            workers.stop()
-        hub.close()
+        with signals.stopping():
+            if workers is not None:
+                workers.stop()
+            hub.close()
     return 0

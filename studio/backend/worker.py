@@ -14,9 +14,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import signal
 import sys
-import threading
 from pathlib import Path
 
 import platformdirs
@@ -25,6 +23,7 @@ from studio.backend import bus, keys
 from studio.backend.episode_transfer import EpisodeDestination, EpisodeShipper
 from studio.backend.job_runner import JobRunner, resolve_handlers
 from studio.backend.presence import WorkerPresence, new_worker_id
+from studio.stopping import StopSignals
 
 KINDS = ("sim", "train")
 
@@ -96,9 +95,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"studio worker: {e}", file=sys.stderr)
         return 1
 
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    signals = StopSignals("studio worker")
     parent = os.getppid()
     spool_dir = Path(args.spool_dir) if args.spool_dir else default_spool_dir()
     presence = WorkerPresence(
@@ -128,18 +125,23 @@ def run(args: argparse.Namespace) -> int:
     presence.announce()
     where = ", ".join(config.connect + config.listen)
     print(f"studio worker {args.kind} {worker_id} ready ({config.mode} on {where})", flush=True)
+
+    def parent_gone() -> bool:
+        if args.exit_with_parent and os.getppid() != parent:
+            logging.warning("parent process exited; stopping")
+            return True
+        return False
+
     try:
-        while not stop.wait(0.5):
-            if args.exit_with_parent and os.getppid() != parent:
-                logging.warning("parent process exited; stopping")
-                break
+        signals.wait_for_stop(every=parent_gone)
     finally:
-        presence.update(state="stopping", activity="shutting down")
-        if sim_host is not None:
-            sim_host.close()
-        runner.shutdown(timeout=5.0)
-        presence.close()
-        if destination is not None:
-            destination.close()
-        session.close()
+        with signals.stopping():
+            presence.update(state="stopping", activity="shutting down")
+            if sim_host is not None:
+                sim_host.close()
+            runner.shutdown(timeout=5.0)
+            presence.close()
+            if destination is not None:
+                destination.close()
+            session.close()
     return 0

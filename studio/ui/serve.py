@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
 
 from studio.backend import bus
 from studio.data.paths import add_data_dir_argument
+from studio.stopping import StopSignals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,9 +50,7 @@ def run(args: argparse.Namespace) -> int:
     except bus.BusError as e:
         print(f"studio serve: {e}", file=sys.stderr)
         return 1
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    signals = StopSignals("studio serve")
     workers = (
         "one sim worker and one trainer"
         if args.workers != "none"
@@ -65,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
         flush=True,
     )
     try:
-        stop.wait()
+        signals.wait_for_stop()
     finally:
-        app.stop()
+        with signals.stopping():
+            app.stop()
     return 0

@@ -53,6 +53,7 @@ def start_hub(endpoint: str, data_dir, *extra: str) -> subprocess.Popen:
                 ready.set()
 
     threading.Thread(target=read, daemon=True).start()
+    proc.lines = lines  # type: ignore[attr-defined]  # what it printed, for failure messages
     if not ready.wait(60):
         proc.kill()
         raise AssertionError("studio hub did not start:\n" + "".join(lines))
@@ -99,7 +100,11 @@ def test_hub_process_with_client_workers_runs_jobs_and_stores_shipped_episodes(t
             session.close()
         hub.send_signal(signal.SIGTERM)
         try:
-            assert hub.wait(30) == 0
+            try:
+                code = hub.wait(30)
+            except subprocess.TimeoutExpired:
+                code = None  # a hung shutdown dumps its threads' stacks after 20 s: show them
+            assert code == 0, "studio hub did not stop on SIGTERM:\n" + "".join(hub.lines)
         finally:
             if hub.poll() is None:
                 hub.kill()
