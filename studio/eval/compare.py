@@ -32,7 +32,7 @@ from pathlib import Path
 from studio.data.catalog import RolloutRecord
 from studio.data.paths import add_data_dir_argument
 from studio.data.splits import SPLIT_WORDS, resolve_tasks, scene_of_task
-from studio.eval.evaluation import RolloutSummary
+from studio.eval.evaluation import RolloutSummary, add_expert_embodiment_argument, expert_embodiments_of
 
 ORACLE = "oracle"
 #: The difference column: which of A and B succeeded.
@@ -323,6 +323,7 @@ def compare(
     robot: str | None = None,
     label_a: str | None = None,
     label_b: str | None = None,
+    expert_embodiments: Sequence[str] | None = None,
     checkpoint_ids: tuple[str | None, str | None] | None = None,
     on_episode: Callable[[int, int, CompareRow], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
@@ -330,7 +331,8 @@ def compare(
     """Roll out both checkpoints on the same episodes (see the module's docstring) and return the comparison.
 
     Input is checked before anything runs (:class:`CompareInputError`). ``checkpoint_ids`` are the catalog ids
-    the rollouts are stored under (default: each file registered as ``studio eval`` does). ``on_episode(done,
+    the rollouts are stored under (default: each file registered as ``studio eval`` does). ``expert_embodiments``
+    picks whose demonstrations both imitate, as in ``studio eval``. ``on_episode(done,
     total, row)`` is called each time both sides of an episode have finished; ``should_stop`` is polled between
     rollouts and stops the comparison with :class:`InterruptedError` (the rollouts stored so far stay, marked as
     part of a comparison that planned more).
@@ -338,6 +340,7 @@ def compare(
     from studio.data.paths import resolve_data_dir
     from studio.data.store import EpisodeStore
     from studio.eval.evaluation import (
+        DEFAULT_EXPERT_EMBODIMENTS,
         PolicyRun,
         default_robot,
         make_jobs,
@@ -361,11 +364,14 @@ def compare(
     for checkpoint in (checkpoint_a, checkpoint_b):
         check_checkpoint(checkpoint, scene)
     robot = robot or default_robot(scene)
+    experts = tuple(
+        expert_embodiments or (("sawyer",) if scene == "metaworld" else DEFAULT_EXPERT_EMBODIMENTS)
+    )
     root = str(resolve_data_dir(data_dir))
     jobs = make_jobs(tasks, episodes, seed)
     with EpisodeStore(root) as store:
         try:
-            jobs = with_demonstrations(store, jobs)  # drawn once: A and B imitate the same ones
+            jobs = with_demonstrations(store, jobs, experts)  # drawn once: A and B imitate the same ones
         except RuntimeError as e:
             raise CompareInputError(str(e)) from None
     ids = list(checkpoint_ids or (None, None))
@@ -443,14 +449,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--json", action="store_true", help="print the comparison as JSON instead of the table"
     )
+    add_expert_embodiment_argument(parser)
     add_data_dir_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         tasks = task_list(args.scene, args.tasks)
+        try:
+            experts = expert_embodiments_of(args)
+        except ValueError as e:
+            raise CompareInputError(str(e)) from None
         result = compare(args.a, args.b, tasks, args.episodes, args.seed, replan=args.replan, workers=args.workers,
-                         data_dir=args.data_dir, robot=args.robot, label_a=args.label_a, label_b=args.label_b)  # fmt: skip
+                         data_dir=args.data_dir, robot=args.robot, label_a=args.label_a, label_b=args.label_b,
+                         expert_embodiments=experts)  # fmt: skip
     except CompareInputError as e:
         print(f"studio compare: {e}", file=sys.stderr)
         return 2

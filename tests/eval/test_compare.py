@@ -193,6 +193,11 @@ def _cli(*argv: str) -> int:
             "was trained on pick_place tasks, not on scene 'push'",
         ),
         (("--a", "README", "--b", "oracle"), "is not a checkpoint"),
+        (("--a", "oracle", "--b", "oracle", "--expert-embodiment", "robot"), "unknown embodiment(s) robot"),
+        (
+            ("--a", "oracle", "--b", "oracle", "--tasks", TASK, "--expert-embodiment", "panda"),
+            f"no expert demonstration of '{TASK}' by panda",
+        ),
     ],
 )
 def test_bad_input_exits_2_with_one_line_before_any_rollout(argv, says, store_root, capsys):
