@@ -19,7 +19,7 @@ from studio.backend import bus
 from studio.backend.episode_transfer import EpisodeSink
 from studio.backend.jobs import JobClient, JobQueue
 from studio.backend.presence import Directory
-from studio.stopping import StopSignals
+from studio.backend.stopping import StopSignals
 
 JOURNAL_NAME = "jobs/queue.json"
 

@@ -23,7 +23,7 @@ from studio.backend import bus, keys
 from studio.backend.episode_transfer import EpisodeDestination, EpisodeShipper
 from studio.backend.job_runner import JobRunner, resolve_handlers
 from studio.backend.presence import WorkerPresence, new_worker_id
-from studio.stopping import StopSignals
+from studio.backend.stopping import StopSignals
 
 KINDS = ("sim", "train")
 

@@ -15,8 +15,8 @@ import logging
 import sys
 
 from studio.backend import bus
+from studio.backend.stopping import StopSignals
 from studio.data.paths import add_data_dir_argument
-from studio.stopping import StopSignals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

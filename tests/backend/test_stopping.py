@@ -14,7 +14,7 @@ import pytest
 PROGRAM = textwrap.dedent(
     """
     import sys, threading, time
-    from studio.stopping import StopSignals
+    from studio.backend.stopping import StopSignals
 
     shutdown_s, dump_after_s = float(sys.argv[1]), float(sys.argv[2])
     signals = StopSignals("probe")
@@ -82,7 +82,7 @@ def test_a_hung_shutdown_shows_its_stacks_and_a_second_signal_exits_now(sig):
 
 
 def test_a_poll_callback_can_end_the_wait():
-    from studio.stopping import StopSignals
+    from studio.backend.stopping import StopSignals
 
     calls = []
     signals = StopSignals("probe", signals=())  # no handlers: this process's own stay as they are
