@@ -4,7 +4,7 @@ The first signal asks for an orderly shutdown: the command closes its sessions, 
 signal while that is under way exits at once (status 130), for a shutdown that hangs, and a shutdown that takes
 longer than :data:`DUMP_AFTER_S` writes every thread's Python stack to stderr, so that the hang says where it is.
 
-The main thread waits for the signal in short slices (:func:`wait_for_stop`) rather than in one untimed wait:
+The main thread waits for the signal in short slices (:meth:`StopSignals.wait_for_stop`) rather than in one untimed wait:
 Python runs handlers only in the main thread between bytecodes, and a signal the kernel hands to one of the
 many other threads (zenoh's, torch's) would not wake an untimed lock wait.
 """

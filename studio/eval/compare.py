@@ -340,8 +340,8 @@ def compare(
     from studio.data.paths import resolve_data_dir
     from studio.data.store import EpisodeStore
     from studio.eval.evaluation import (
-        DEFAULT_EXPERT_EMBODIMENTS,
         PolicyRun,
+        default_expert_embodiments,
         default_robot,
         make_jobs,
         register_checkpoint,
@@ -364,9 +364,7 @@ def compare(
     for checkpoint in (checkpoint_a, checkpoint_b):
         check_checkpoint(checkpoint, scene)
     robot = robot or default_robot(scene)
-    experts = tuple(
-        expert_embodiments or (("sawyer",) if scene == "metaworld" else DEFAULT_EXPERT_EMBODIMENTS)
-    )
+    experts = tuple(expert_embodiments or default_expert_embodiments(scene))
     root = str(resolve_data_dir(data_dir))
     jobs = make_jobs(tasks, episodes, seed)
     with EpisodeStore(root) as store:

@@ -339,6 +339,12 @@ def with_budget(report: dict, replan: int, tasks: Collection[str] | None = None)
     }
 
 
+def default_expert_embodiments(scene: str) -> tuple[str, ...]:
+    """Whose demonstrations a scene's rollouts imitate unless told: the Sawyer on Meta-World, else the Sawyer or a
+    person."""
+    return ("sawyer",) if scene == "metaworld" else DEFAULT_EXPERT_EMBODIMENTS
+
+
 def default_robot(scene: str) -> str:
     """The agent of a scene family: the Panda on the tabletop, the Sawyer in Meta-World (same pool, as in the paper)."""
     return "sawyer" if scene == "metaworld" else "panda"
@@ -398,9 +404,7 @@ def evaluate(
     root = str(resolve_data_dir(data_dir))
     eval_id = f"eval-{uuid.uuid4().hex[:10]}"
     checkpoint_id = None if checkpoint == "oracle" else register_checkpoint(root, checkpoint)
-    experts = tuple(
-        expert_embodiments or (("sawyer",) if scene == "metaworld" else DEFAULT_EXPERT_EMBODIMENTS)
-    )
+    experts = tuple(expert_embodiments or default_expert_embodiments(scene))
     from studio.data.store import EpisodeStore
 
     with EpisodeStore(root) as store:
