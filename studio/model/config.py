@@ -193,6 +193,9 @@ class TrainConfig:
         pair_channels: probability of reordering the RGB channels of an expert video and its agent clips by one
             shared permutation (one of the five that change something; not in the paper; ``augment``): the
             same purpose as ``pair_hue`` with the colours kept saturated and apart.
+        reverse: probability of playing a demonstration and its agent clips backwards, as a pair of the task
+            that undoes it (not in the paper; ``reversal``): a scene seen with one motion only (Meta-World closes
+            the window, never opens it) is then seen with both, told apart by the demonstration alone.
         freeze: parts of the network left as they start (no gradient, BatchNorm statistics kept): any of
             ``FREEZABLE`` (a comma-separated string or a list). Meant for ``--init`` runs, e.g. adding 𝒲 to a
             no-world-model checkpoint while the encoder and π it inherits stay as they are.
@@ -244,6 +247,7 @@ class TrainConfig:
     hue: float = 0.05
     pair_hue: float = 0.0
     pair_channels: float = 0.0
+    reverse: float = 0.0
     freeze: tuple[str, ...] = ()
     mixup: bool = True
     mixup_min: float = 0.3
@@ -288,6 +292,8 @@ class TrainConfig:
             )
         if self.precision not in ("fp32", "bf16"):
             raise ValueError(f"precision must be 'fp32' or 'bf16', got {self.precision!r}")
+        if not 0.0 <= self.reverse <= 1.0:
+            raise ValueError(f"reverse must be a probability in [0, 1], got {self.reverse}")
         if not 0.0 < self.mixup_min <= 1.0:
             raise ValueError(f"mixup_min must be in (0, 1], got {self.mixup_min}")
         if self.demo_task_weight < 0:

@@ -51,6 +51,7 @@ from studio.model.demo_task import demo_task_loss, label_table
 from studio.model.losses import alpha as alpha_at
 from studio.model.losses import waypoint_errors, waypoint_loss, world_model_loss
 from studio.model.osvi_wm import OSVIWM
+from studio.model.reversal import reverse_pairs
 from studio.model.run_files import write_json
 from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, plan_batches
 
@@ -136,6 +137,8 @@ def compute_losses(
     ``step`` is past the clean warm-up (``TrainConfig.aug_warmup``)."""
     cfg = run.train
     if generator is not None and step >= cfg.aug_warmup * total:
+        if cfg.reverse > 0:
+            batch, _ = reverse_pairs(batch, cfg.reverse, generator)
         with torch.no_grad():
             aug = augment_batch(
                 batch.expert_frames,
