@@ -799,7 +799,7 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
 def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shots):
     """Meta-World in the browser: choose the scene in the Teleop tab's dropdown (the robot choice narrows to the
     Sawyer), drag the arm, record and save; the Imitate tab then offers the recording as a demonstration of its
-    task, and Plan runs with it on the Meta-World scene."""
+    task, and the shipped Meta-World policy plans from it on the Meta-World scene."""
     tab = _tab(studio)
     tp, im = tab.teleop, tab.imitate
     _open_tab(page, "Teleop", "Drag the gizmo")
@@ -838,9 +838,11 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
 
     _open_tab(page, "Imitate", "Choose a")
     im.task.value = next(label for label, name in im.labels.items() if name == task)
-    # No Meta-World policy ships and none was chosen: the oracle plans it, labelled as the execution ceiling (the
-    # pick-and-place policy chosen earlier never plans another scene's task).
-    _wait(lambda: "**metaworld** tasks: **oracle — execution ceiling**" in im.policy.content, 20,
+    # None was chosen for Meta-World: the shipped Meta-World policy plans it, learnt from Sawyer demonstrations like
+    # this recording (the pick-and-place policy chosen earlier never plans another scene's task).
+    mw = studio.runs.shipped_for("metaworld")
+    assert mw is not None and mw.id == "default/metaworld-cpu" and mw.scene == "metaworld"
+    _wait(lambda: f"**metaworld** tasks: `{mw.id}` (learnt from sawyer demonstrations" in im.policy.content, 20,
           "the Meta-World policy line", lambda: im.policy.content)  # fmt: skip
     _wait(
         lambda: any(o.startswith(new.id) for o in im.demo.options),
@@ -852,7 +854,7 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     _click(page.get_by_role("button", name="Plan", exact=True))
     job = _wait(lambda: im.plan_job is not before_job and im.plan_job, 30, "a new plan job")
     assert job.spec["expert_episode_id"] == new.id and job.spec["robot"] == "sawyer"
-    assert job.spec["checkpoint"] == "oracle"
+    assert job.spec["checkpoint"] == mw.path
     _wait(lambda: job.result is not None, 120, "the plan on the Meta-World scene")
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
