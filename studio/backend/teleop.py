@@ -280,9 +280,8 @@ class TeleopSession:
     def _describe_model(self) -> None:
         """Cameras and bodies of the current model (a Meta-World reset to another task changes the model)."""
         m = self.env.model
-        # "external" is the studio's observation camera in every scene (Meta-World maps it onto one of its own).
-        names = [m.camera(i).name for i in range(m.ncam)]
-        self.cameras = ("external", *(n for n in names if n and n != "external"))
+        # "external" (the observation camera) and "wrist" in every scene; Meta-World re-mounts two of its own.
+        self.cameras = self.env.camera_names
         self.body_names = body_names(m)
         self._geometry: msg.SceneGeometry | None = None
 

@@ -4,7 +4,8 @@ This is where the model and the simulator meet (they never import each other). A
 
 1. resets the scene (task, seed) — once; re-planning never resets it;
 2. renders the agent's current frame and asks the planner for 5 attributed waypoints;
-3. executes them with the waypoint controller (grasp correction in pick-and-place scenes);
+3. executes them with the waypoint controller (grasp correction from the wrist depth camera in the
+   pick-and-place and Meta-World scenes, :data:`GRASP_CORRECTION_SCENES`);
 4. if the task has not succeeded and re-plans remain, takes a fresh observation of the *same* episode and
    plans again with the same demonstration.
 
@@ -32,6 +33,8 @@ from studio.sim.waypoints import ControllerConfig, WaypointController
 #: Failure stages, in the order a rollout passes them (the paper's breakdown).
 STAGES = ("reached", "grasped", "placed")
 FAILURE_NAMES = {"reached": "reach", "grasped": "grasp", "placed": "place"}
+#: Scenes whose rollouts correct grasps from the wrist depth camera by default (the paper's execution).
+GRASP_CORRECTION_SCENES = ("pick_place", "metaworld")
 
 
 class PlannerLike(Protocol):
@@ -134,7 +137,7 @@ def run_rollout(
     cfg = controller_config or ControllerConfig()
     if grasp_correction is not None:
         cfg.grasp_correction = grasp_correction
-    elif env.scene != "pick_place":
+    elif env.scene not in GRASP_CORRECTION_SCENES:
         cfg.grasp_correction = False  # grasp correction centres over objects: only meaningful for grasps
     controller = WaypointController(env, cfg, on_tick=tick, on_event=event)
     plans: list[PlanRecord] = []

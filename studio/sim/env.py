@@ -66,6 +66,8 @@ class Simulator(Protocol):
     def data(self) -> mujoco.MjData: ...
     @property
     def ee_pos(self) -> np.ndarray: ...
+    @property
+    def camera_names(self) -> tuple[str, ...]: ...
 
     def reset(self, task: str, seed: int) -> None: ...
     def restore(self, task: str, seed: int, states: np.ndarray, gripper_cmd: float) -> None: ...
@@ -271,6 +273,12 @@ class SimEnv:
 
     def success(self) -> bool:
         return self.stages()["placed"]
+
+    @property
+    def camera_names(self) -> tuple[str, ...]:
+        """The cameras :meth:`render` takes: ``"external"`` (the observation camera), ``"wrist"``, then the rest."""
+        names = [self.model.camera(i).name for i in range(self.model.ncam)]
+        return ("external", "wrist", *(n for n in names if n and n not in ("external", "wrist")))
 
     def camera_model(self, camera: str = "external", size: tuple[int, int] | None = None) -> CameraModel:
         h, w = size or (self.image_size if camera == "external" else self.depth_size)

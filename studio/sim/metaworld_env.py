@@ -29,6 +29,11 @@ stepping, so the waypoint controller, the recorder, rollouts and teleop work on 
   z ∈ [0, 0.3] m just fills the image. Shadows, reflections, skybox and multisampling are off.
   Meta-World's site markers (goals, fingertips) stay visible: for tasks such as pick-place the goal
   marker is the only thing in the image that says where to go.
+* **A wrist depth camera.** ``"wrist"`` is Meta-World's ``behindGripper`` camera re-mounted on the hand
+  exactly where our tabletop Sawyer carries its wrist camera (4 cm behind the hand origin, looking along
+  the gripper axis, 75° field of view), so grasp correction runs on Meta-World as on the tabletop scenes,
+  as in the paper (the reference code's Meta-World evaluation hands every grasp to its wrist-camera grasp
+  policy too).
 
 The end-effector point is the hand body's origin — Meta-World's own ``hand_pos`` observation, the
 point its scripted policies steer and the mocap target (the grasp site of our tabletop Sawyer is the
@@ -61,6 +66,12 @@ IMAGE_SIZE = (224, 224)
 #: The Meta-World camera the external view is made from, and its vertical field of view, degrees.
 EXTERNAL_SOURCE = "corner"
 EXTERNAL_FOVY = 30.0
+#: The Meta-World camera re-mounted as the wrist depth camera ``"wrist"``, and its pose in the hand frame: the
+#: tabletop Sawyer's (:func:`studio.sim.robots.finish_spec`; the hand's +x axis is the gripper axis).
+WRIST_SOURCE = "behindGripper"
+WRIST_POS = np.array([-0.04, 0.0, 0.0])
+WRIST_XYAXES = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
+WRIST_FOVY = 75.0
 #: Seconds per control tick (Meta-World's frame_skip 5 × 2.5 ms) and largest mocap move per tick and axis, m.
 CONTROL_DT = 0.0125
 MAX_STEP = 0.01
@@ -75,6 +86,17 @@ OBJECT_NAMES = ("object0", "object1")
 _QUAT_TOKEN = re.compile(
     r"as_quat\(|xquat|np\.zeros\(4\)|np\.array\(\s*\[\s*[01]\.0\s*,\s*0\.0\s*,\s*0\.0\s*,\s*0\.0\s*,?\s*\]\s*\)"
 )
+
+
+def _quat_from_xyaxes(xyaxes: np.ndarray) -> np.ndarray:
+    """The (w, x, y, z) orientation whose frame has the given x and y axes (MJCF's ``xyaxes``)."""
+    x = xyaxes[0] / np.linalg.norm(xyaxes[0])
+    y = xyaxes[1] - x * float(x @ xyaxes[1])
+    y = y / np.linalg.norm(y)
+    mat = np.column_stack([x, y, np.cross(x, y)])
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, mat.reshape(-1))
+    return quat
 
 
 class SimulationDiverged(RuntimeError):
@@ -168,10 +190,17 @@ class MetaWorldEnv:
         mujoco.mju_mulQuat(upright, m.cam_quat[cam].copy(), np.array([0.0, 0.0, 0.0, 1.0]))
         m.cam_quat[cam] = upright
         m.cam_fovy[cam] = EXTERNAL_FOVY
+        wrist = m.camera(WRIST_SOURCE).id
+        m.cam_mode[wrist] = mujoco.mjtCamLight.mjCAMLIGHT_FIXED
+        m.cam_bodyid[wrist] = m.body("hand").id
+        m.cam_pos[wrist] = WRIST_POS
+        m.cam_quat[wrist] = _quat_from_xyaxes(WRIST_XYAXES)
+        m.cam_fovy[wrist] = WRIST_FOVY
         m.vis.quality.offsamples = 0
         self._mw = mw
         self._renderers = rendering.Renderers(m)
         self._external_id = cam
+        self._wrist_id = wrist
         self._pristine = {"body_pos": m.body_pos.copy(), "site_pos": m.site_pos.copy()}
         self._robot_qadr = np.array(
             [m.jnt_qposadr[m.joint(j).id] for j in self.robot_info.arm_joints + self.robot_info.finger_joints]
@@ -375,14 +404,25 @@ class MetaWorldEnv:
         grasped = (reached and self._ever["grasp_success"]) or placed
         return {"reached": reached, "grasped": grasped, "placed": placed}
 
+    @property
+    def camera_names(self) -> tuple[str, ...]:
+        """The cameras :meth:`render` takes: ``"external"``, ``"wrist"``, then Meta-World's others (the two
+        re-mounted ones are not offered under their Meta-World names)."""
+        names = [self.model.camera(i).name for i in range(self.model.ncam)]
+        return ("external", "wrist", *(n for n in names if n and n not in (EXTERNAL_SOURCE, WRIST_SOURCE)))
+
     def camera_model(self, camera: str = "external", size: tuple[int, int] | None = None) -> CameraModel:
         h, w = size or (self.image_size if camera == "external" else self.depth_size)
         key = (camera, h, w)
         cam = self._cameras.get(key)
         if cam is None:
             cam = CameraModel.from_mujoco(self.model, self.data, self._camera_id(camera), w, h)
-            if self.model.cam_mode[self._camera_id(camera)] == mujoco.mjtCamLight.mjCAMLIGHT_FIXED:
-                self._cameras[key] = cam  # fixed cameras never move; moving ones are recomputed
+            cid = self._camera_id(camera)
+            if (
+                self.model.cam_mode[cid] == mujoco.mjtCamLight.mjCAMLIGHT_FIXED
+                and self.model.cam_bodyid[cid] == 0
+            ):
+                self._cameras[key] = cam  # cameras fixed to the world never move; the others are recomputed
         return cam
 
     def state(self) -> dict[str, np.ndarray | float]:
@@ -403,12 +443,16 @@ class MetaWorldEnv:
     def _camera_id(self, camera: str) -> int:
         if camera == "external":
             return self._external_id
+        if camera == "wrist":
+            return self._wrist_id
+        if camera in (EXTERNAL_SOURCE, WRIST_SOURCE):
+            raise ValueError(
+                f"Meta-World's {camera!r} camera is re-mounted here: ask for 'external' or 'wrist'"
+            )
         cam = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
         if cam < 0:
-            names = ["external"] + [self.model.camera(i).name for i in range(self.model.ncam)]
             raise ValueError(
-                f"no camera {camera!r} in Meta-World scenes; choose from {names} "
-                "(there is no wrist depth camera: grasp correction is off on Meta-World)"
+                f"no camera {camera!r} in Meta-World scenes; choose from {list(self.camera_names)}"
             )
         return cam
 

@@ -216,6 +216,10 @@ def test_metaworld_session_follows_the_task_model(site):
         last = drive(client, start + np.array([0.0, 0.0, -0.03]), gripper=0.0, ticks=20)
         assert last.body_count == len(info.body_names) and last.ee_pos[2] < start[2] - 0.01
         assert client.request_frame().width == 224
+        # Every camera the session offers renders; Meta-World's re-mounted ones go by the studio's names.
+        assert info.cameras[:2] == ("external", "wrist") and "behindGripper" not in info.cameras
+        for camera in info.cameras:
+            assert client.request_frame(camera=camera, encoding="raw").to_array().std() > 1, camera
         other = client.reset(task="metaworld/drawer-open-v3", seed=1)
         assert other.task == "metaworld/drawer-open-v3"
         frame = client.poses.wait_until(lambda f: f.body_count == len(other.body_names), 5.0)

@@ -12,6 +12,7 @@ import pytest
 from metaworld_cases import TEST_AND_TWINS
 
 from studio.sim.env import SimEnv, make_env
+from studio.sim.grasp_correction import segment_largest
 from studio.sim.metaworld_env import MetaWorldEnv, metaworld_env_class, quaternion_orders
 from studio.sim.metaworld_tasks import ENV_NAMES, MetaWorldTask
 from studio.sim.recording import ARRAY_FIELDS
@@ -108,8 +109,24 @@ def test_state_camera_and_render(env):
     assert img.shape == (64, 64, 3) and img.dtype == np.uint8 and img.std() > 10
     depth = env.render_depth("external", size=(32, 32))
     assert depth.shape == (32, 32) and 0.5 < float(np.median(depth)) < 3.0
-    with pytest.raises(ValueError, match="no wrist depth camera"):
-        env.render_depth("wrist")
+    with pytest.raises(ValueError, match=r"no camera 'nope'.*'wrist'"):
+        env.render("nope")
+
+
+def test_the_wrist_camera_rides_on_the_hand_and_finds_the_puck_between_the_fingers(env):
+    env.reset("metaworld/pick-place-wall-v3", 0)
+    puck = env.object_poses()["object0"][:3]
+    for offset in ([0.0, 0.0, 0.12], [0.03, -0.02, 0.12]):
+        for _ in range(150):
+            env.step(puck + np.array(offset), 0.0)
+        cam = env.camera_model("wrist")  # recomputed at every call: the camera moves with the hand
+        assert np.allclose(cam.T_world_cam[:3, 3], env.ee_pos + np.array([0.0, 0.0, 0.04]), atol=3e-3)
+        u, v = cam.world_to_pixel(env.ee_pos - np.array([0.0, 0.0, 0.1]))  # straight down the gripper axis
+        assert abs(u - 32) < 1.5 and abs(v - 32) < 1.5
+        found = segment_largest(env.render_depth("wrist"), cam, near=env.ee_pos, radius=0.06)
+        assert found is not None and np.linalg.norm(found.world[:2] - puck[:2]) < 0.004
+    with pytest.raises(ValueError, match="re-mounted"):
+        env.render("behindGripper")
 
 
 def test_quaternion_orders_follow_the_source():
