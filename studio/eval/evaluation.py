@@ -52,6 +52,7 @@ class PolicyRun:
     checkpoint_id: str | None  # the catalog id (None for the oracle)
     eval_id: str
     extra: dict = field(default_factory=dict)  # added to each stored rollout's ``extra``
+    grasp: str = "auto"  # grasp correction (studio.eval.rollout.GRASP_MODES)
 
 
 @dataclass
@@ -163,7 +164,7 @@ def _run_job(
     job: EvalJob, policy: PolicyRun, replan: int, keep: bool, should_stop: Callable[[], bool] | None = None
 ) -> RolloutSummary:
     from studio.eval.latents import attach_latent_images
-    from studio.eval.rollout import run_rollout, store_rollout
+    from studio.eval.rollout import grasp_controller, run_rollout, store_rollout
 
     store, env = _W["store"], _W["env"]
     planner = _W["planners"][policy.checkpoint]
@@ -189,6 +190,7 @@ def _run_job(
         replans=replan,
         on_tick=on_tick,
         should_stop=should_stop,
+        controller_config=grasp_controller(env.scene, policy.grasp),
     )
     if out.failure_stage == "cancelled":
         raise InterruptedError("stopped before the rollout ended")
@@ -201,7 +203,12 @@ def _run_job(
         checkpoint_id=policy.checkpoint_id,
         eval_id=policy.eval_id,
         keep=keep,
-        extra={"index": job.index, "stage_ticks": stage_ticks, **policy.extra},
+        extra={
+            "index": job.index,
+            "stage_ticks": stage_ticks,
+            "grasp_correction": policy.grasp,
+            **policy.extra,
+        },
     )
     return RolloutSummary(record.id, job.task, job.index, job.env_seed, expert_id, out.success,
                           out.stages["reached"], out.stages["grasped"], out.stages["placed"], out.failure_stage,
@@ -387,12 +394,18 @@ def evaluate(
     keep: bool = True,
     progress: bool = True,
     expert_embodiments: Sequence[str] | None = None,
+    grasp: str = "auto",
 ) -> dict:
     """Run the evaluation and return the report (also written into the catalog as rollouts).
 
     ``expert_embodiments`` picks whose demonstrations the rollouts imitate (None: Sawyer or human; Meta-World: the
-    Sawyer, its only demonstrator). The demonstrations are drawn before the first rollout.
+    Sawyer, its only demonstrator). The demonstrations are drawn before the first rollout. ``grasp`` is the grasp
+    correction (:data:`studio.eval.rollout.GRASP_MODES`; ``auto``: the scene's own).
     """
+    from studio.eval.rollout import GRASP_MODES
+
+    if grasp not in GRASP_MODES:
+        raise ValueError(f"unknown grasp correction {grasp!r}; choose from {', '.join(GRASP_MODES)}")
     from studio.data.paths import resolve_data_dir
     from studio.sim.tasks import get_task
 
@@ -410,7 +423,7 @@ def evaluate(
     with EpisodeStore(root) as store:
         jobs = with_demonstrations(store, make_jobs(tasks, episodes, seed), experts)
     started = time.perf_counter()
-    policy = PolicyRun(checkpoint, checkpoint_id, eval_id)
+    policy = PolicyRun(checkpoint, checkpoint_id, eval_id, grasp=grasp)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -438,6 +451,7 @@ def evaluate(
             "scene": scene,
             "seed": seed,
             "replan": replan,
+            "grasp_correction": grasp,
             "expert_embodiments": list(experts),
             "episodes_per_task": episodes,
             "wall_s": time.perf_counter() - started,
@@ -473,6 +487,19 @@ def expert_embodiments_of(args: argparse.Namespace) -> list[str] | None:
     return names
 
 
+def add_grasp_correction_argument(parser: argparse.ArgumentParser) -> None:
+    """``--grasp-correction``: how rollouts correct grasps from the wrist depth camera."""
+    from studio.eval.rollout import GRASP_MODES
+
+    parser.add_argument(
+        "--grasp-correction",
+        choices=GRASP_MODES,
+        default="auto",
+        help="auto: the scene's default (pick_place and metaworld: height, push: off); height: centre over the "
+        "object and grasp no higher than its middle; centre: centre only (the paper's); off: grasp as planned",
+    )
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--checkpoint", required=True, help="checkpoint file, or 'oracle' for the execution ceiling"
@@ -498,6 +525,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-store", action="store_true", help="do not store the rollouts (catalog rows only)"
     )
     parser.add_argument("--json", action="store_true", help="print the full report as JSON")
+    add_grasp_correction_argument(parser)
     add_expert_embodiment_argument(parser)
     add_data_dir_argument(parser)
 
@@ -524,6 +552,7 @@ def run(args: argparse.Namespace) -> int:
         args.robot,
         keep=not args.no_store,
         expert_embodiments=experts,
+        grasp=args.grasp_correction,
     )
     if args.json:
         print(json.dumps(report, default=float))

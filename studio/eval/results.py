@@ -1,8 +1,8 @@
 """`studio results`: the held-out evaluations behind ``docs/results.md``, rendered as a Markdown table.
 
     studio results --policy NAME=CKPT [--policy NAME=CKPT ...] [--scene pick_place] [--episodes 100]
-                   [--replan 0 2] [--seed 0] [--workers 2] [--expert-embodiment human] [--data-dir DIR]
-                   [--out results.md]
+                   [--replan 0 2] [--seed 0] [--workers 2] [--expert-embodiment human] [--grasp-correction auto]
+                   [--data-dir DIR] [--out results.md]
 
 Each policy (the main checkpoint first, then e.g. ablations trained on the same data and budget) is evaluated on
 the scene's held-out tasks once, with the largest ``--replan`` budget and the same seeds — so every row sees the
@@ -28,6 +28,7 @@ from studio.data.paths import add_data_dir_argument
 from studio.data.splits import SplitSpec, load_split, resolve_tasks
 from studio.eval.evaluation import (
     add_expert_embodiment_argument,
+    add_grasp_correction_argument,
     evaluate,
     expert_embodiments_of,
     with_budget,
@@ -114,6 +115,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
+    add_grasp_correction_argument(parser)
     add_expert_embodiment_argument(parser)
     parser.add_argument("--out", default=None, help="Markdown file to write (default: print only)")
     add_data_dir_argument(parser)
@@ -133,13 +135,14 @@ def run(args: argparse.Namespace) -> int:
     for name, checkpoint in args.policy:
         print(f"== {name}, re-plans {most}", file=sys.stderr, flush=True)
         report = evaluate(checkpoint, tasks, args.episodes, args.seed, most, args.workers, args.data_dir,
-                          expert_embodiments=experts)  # fmt: skip
+                          expert_embodiments=experts, grasp=args.grasp_correction)  # fmt: skip
         reports += budget_rows(name, report, args.replan, split)
     table = render_markdown(reports, split.test_groups)
     machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, {platform.platform()}"
     demos = f"; demonstrations by {', '.join(experts)}" if experts else ""
+    grasp = "" if args.grasp_correction == "auto" else f"; grasp correction: {args.grasp_correction}"
     text = (f"Held-out tasks of `{args.scene}` ({', '.join(tasks)}), {args.episodes} rollouts per task, seed "
-            f"{args.seed}{demos}; {machine}.\n\n{table}")  # fmt: skip
+            f"{args.seed}{demos}{grasp}; {machine}.\n\n{table}")  # fmt: skip
     print(text)
     if args.out:
         out = Path(args.out)

@@ -35,6 +35,20 @@ STAGES = ("reached", "grasped", "placed")
 FAILURE_NAMES = {"reached": "reach", "grasped": "grasp", "placed": "place"}
 #: Scenes whose rollouts correct grasps from the wrist depth camera by default (the paper's execution).
 GRASP_CORRECTION_SCENES = ("pick_place", "metaworld")
+#: How a rollout corrects grasps (``studio eval --grasp-correction``): ``auto`` = the scene's default (below),
+#: ``height`` = centre over the object and grasp no higher than its middle, ``centre`` = centre only (the paper's
+#: correction), ``off`` = execute the grasp as planned.
+GRASP_MODES = ("auto", "height", "centre", "off")
+
+
+def grasp_controller(scene: str, mode: str = "auto") -> ControllerConfig:
+    """The waypoint controller's settings for grasp correction ``mode`` (:data:`GRASP_MODES`) in ``scene``: ``auto``
+    corrects with the grasp height in :data:`GRASP_CORRECTION_SCENES` and not at all elsewhere."""
+    if mode not in GRASP_MODES:
+        raise ValueError(f"unknown grasp correction {mode!r}; choose from {', '.join(GRASP_MODES)}")
+    if mode == "auto":
+        mode = "height" if scene in GRASP_CORRECTION_SCENES else "off"
+    return ControllerConfig(grasp_correction=mode != "off", correct_grasp_height=mode == "height")
 
 
 class PlannerLike(Protocol):
@@ -134,11 +148,9 @@ def run_rollout(
         if should_stop is not None and should_stop():
             controller.cancelled = True
 
-    cfg = controller_config or ControllerConfig()
+    cfg = controller_config or grasp_controller(env.scene)
     if grasp_correction is not None:
         cfg.grasp_correction = grasp_correction
-    elif env.scene not in GRASP_CORRECTION_SCENES:
-        cfg.grasp_correction = False  # grasp correction centres over objects: only meaningful for grasps
     controller = WaypointController(env, cfg, on_tick=tick, on_event=event)
     plans: list[PlanRecord] = []
     attempt_stages: list[dict[str, bool]] = []

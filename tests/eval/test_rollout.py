@@ -2,6 +2,7 @@
 
 import json
 import os
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -13,7 +14,7 @@ from studio.data.splits import resolve_tasks
 from studio.data.store import EpisodeStore
 from studio.eval.evaluation import evaluate, make_jobs
 from studio.eval.oracle import OraclePlanner
-from studio.eval.rollout import failure_stage, run_rollout
+from studio.eval.rollout import failure_stage, grasp_controller, run_rollout
 from studio.sim.env import SimEnv
 
 from .tiny_checkpoint import write_tiny_checkpoint
@@ -210,6 +211,46 @@ def test_results_command_writes_a_table_of_held_out_success(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["results", "--policy", "no-equals-sign"])
     assert "NAME=CHECKPOINT" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["results", "--policy", "oracle=oracle", "--grasp-correction", "sideways"])
+    assert "--grasp-correction: invalid choice" in capsys.readouterr().err
+
+
+def test_grasp_correction_modes_set_the_controller():
+    auto = {scene: grasp_controller(scene) for scene in ("pick_place", "metaworld", "push")}
+    assert auto["pick_place"].grasp_correction and auto["pick_place"].correct_grasp_height
+    assert auto["metaworld"].grasp_correction and auto["metaworld"].correct_grasp_height
+    assert not auto["push"].grasp_correction
+    centre = grasp_controller("pick_place", "centre")
+    assert centre.grasp_correction and not centre.correct_grasp_height
+    assert grasp_controller("push", "height").grasp_correction
+    assert not grasp_controller("metaworld", "off").grasp_correction
+    with pytest.raises(ValueError, match="unknown grasp correction 'sideways'"):
+        grasp_controller("pick_place", "sideways")
+
+
+def test_an_evaluation_without_grasp_correction_says_so_and_grasps_as_planned(tmp_path):
+    """The same scenes and demonstrations with the correction off: recorded in the report and on every rollout,
+    and no rollout looks through the wrist camera."""
+    root = tmp_path / "data"
+    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["test"], episodes=1, data_dir=str(root),
+                          progress=False, image_size=(120, 160)))  # fmt: skip
+    tasks = ["pick_place/bar->blue"]
+    report = evaluate("oracle", tasks, 1, 0, data_dir=str(root), progress=False, grasp="off")
+    assert report["grasp_correction"] == "off"
+    with EpisodeStore(root) as store:
+        (rollout,) = store.catalog.rollouts()
+        assert rollout.extra["grasp_correction"] == "off"
+        events = json.loads((Path(rollout.path) / "events.json").read_text())
+    assert events and not any(kind == "grasp_correction" for kind, _ in events)
+    auto = evaluate("oracle", tasks, 1, 0, data_dir=str(root), progress=False)
+    assert auto["grasp_correction"] == "auto"
+    with EpisodeStore(root) as store:
+        (rollout,) = [r for r in store.catalog.rollouts() if r.eval_id == auto["eval_id"]]
+        events = json.loads((Path(rollout.path) / "events.json").read_text())
+    assert any(kind == "grasp_correction" for kind, _ in events), "pick-and-place corrects grasps by default"
+    with pytest.raises(ValueError, match="unknown grasp correction"):
+        evaluate("oracle", tasks, 1, 0, data_dir=str(root), progress=False, grasp="sideways")
 
 
 def test_a_rollout_does_not_depend_on_the_number_of_evaluation_workers(tmp_path):
