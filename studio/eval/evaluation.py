@@ -402,17 +402,15 @@ def evaluate(
     Sawyer, its only demonstrator). The demonstrations are drawn before the first rollout. ``grasp`` is the grasp
     correction (:data:`studio.eval.rollout.GRASP_MODES`; ``auto``: the scene's own).
     """
-    from studio.eval.rollout import GRASP_MODES
-
-    if grasp not in GRASP_MODES:
-        raise ValueError(f"unknown grasp correction {grasp!r}; choose from {', '.join(GRASP_MODES)}")
     from studio.data.paths import resolve_data_dir
+    from studio.eval.rollout import grasp_controller
     from studio.sim.tasks import get_task
 
     scenes = {get_task(t).scene for t in tasks}
     if len(scenes) != 1:
         raise ValueError(f"evaluate one scene at a time, got tasks from {sorted(scenes)}")
     scene = scenes.pop()
+    grasp_controller(scene, grasp)  # a bad mode fails here, before any worker starts
     robot = robot or default_robot(scene)
     root = str(resolve_data_dir(data_dir))
     eval_id = f"eval-{uuid.uuid4().hex[:10]}"

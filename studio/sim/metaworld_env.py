@@ -66,12 +66,9 @@ IMAGE_SIZE = (224, 224)
 #: The Meta-World camera the external view is made from, and its vertical field of view, degrees.
 EXTERNAL_SOURCE = "corner"
 EXTERNAL_FOVY = 30.0
-#: The Meta-World camera re-mounted as the wrist depth camera ``"wrist"``, and its pose in the hand frame: the
-#: tabletop Sawyer's (:func:`studio.sim.robots.finish_spec`; the hand's +x axis is the gripper axis).
+#: The Meta-World camera re-mounted as the wrist depth camera ``"wrist"``, at the tabletop Sawyer's wrist camera
+#: pose (``robots.SAWYER_WRIST_*``: Meta-World's hand is the same model).
 WRIST_SOURCE = "behindGripper"
-WRIST_POS = np.array([-0.04, 0.0, 0.0])
-WRIST_XYAXES = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
-WRIST_FOVY = 75.0
 #: Seconds per control tick (Meta-World's frame_skip 5 × 2.5 ms) and largest mocap move per tick and axis, m.
 CONTROL_DT = 0.0125
 MAX_STEP = 0.01
@@ -88,14 +85,11 @@ _QUAT_TOKEN = re.compile(
 )
 
 
-def _quat_from_xyaxes(xyaxes: np.ndarray) -> np.ndarray:
-    """The (w, x, y, z) orientation whose frame has the given x and y axes (MJCF's ``xyaxes``)."""
-    x = xyaxes[0] / np.linalg.norm(xyaxes[0])
-    y = xyaxes[1] - x * float(x @ xyaxes[1])
-    y = y / np.linalg.norm(y)
-    mat = np.column_stack([x, y, np.cross(x, y)])
+def _quat_from_xyaxes(xyaxes) -> np.ndarray:
+    """The (w, x, y, z) orientation whose frame has the given orthonormal x and y axes (MJCF's ``xyaxes``)."""
+    x, y = np.asarray(xyaxes, dtype=np.float64).reshape(2, 3)
     quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, mat.reshape(-1))
+    mujoco.mju_mat2Quat(quat, np.column_stack([x, y, np.cross(x, y)]).reshape(-1))
     return quat
 
 
@@ -193,9 +187,9 @@ class MetaWorldEnv:
         wrist = m.camera(WRIST_SOURCE).id
         m.cam_mode[wrist] = mujoco.mjtCamLight.mjCAMLIGHT_FIXED
         m.cam_bodyid[wrist] = m.body("hand").id
-        m.cam_pos[wrist] = WRIST_POS
-        m.cam_quat[wrist] = _quat_from_xyaxes(WRIST_XYAXES)
-        m.cam_fovy[wrist] = WRIST_FOVY
+        m.cam_pos[wrist] = robots.SAWYER_WRIST_POS
+        m.cam_quat[wrist] = _quat_from_xyaxes(robots.SAWYER_WRIST_XYAXES)
+        m.cam_fovy[wrist] = robots.SAWYER_WRIST_FOVY
         m.vis.quality.offsamples = 0
         self._mw = mw
         self._renderers = rendering.Renderers(m)
@@ -416,8 +410,8 @@ class MetaWorldEnv:
         key = (camera, h, w)
         cam = self._cameras.get(key)
         if cam is None:
-            cam = CameraModel.from_mujoco(self.model, self.data, self._camera_id(camera), w, h)
             cid = self._camera_id(camera)
+            cam = CameraModel.from_mujoco(self.model, self.data, cid, w, h)
             if (
                 self.model.cam_mode[cid] == mujoco.mjtCamLight.mjCAMLIGHT_FIXED
                 and self.model.cam_bodyid[cid] == 0

@@ -182,6 +182,13 @@ def robot_xml(name: str) -> str:
     raise ValueError(f"unknown robot {name!r}; choose from {ROBOTS}")
 
 
+#: The Sawyer's wrist camera in its hand frame (the hand's +x axis is the gripper axis): 4 cm behind the hand
+#: origin, looking down the gripper axis. Meta-World scenes re-mount one of their cameras here too.
+SAWYER_WRIST_POS = (-0.04, 0.0, 0.0)
+SAWYER_WRIST_XYAXES = (0.0, 1.0, 0.0, 0.0, 0.0, -1.0)
+SAWYER_WRIST_FOVY = 75.0
+
+
 def finish_spec(spec, info: RobotInfo, scene: str | None = None) -> None:
     """Edits the parsed spec before compiling: grasp site, wrist camera, gravity compensation, gains; for the
     hand its grasp welds and contacts, which depend on the ``scene`` (None: the robot alone)."""
@@ -211,7 +218,9 @@ def finish_spec(spec, info: RobotInfo, scene: str | None = None) -> None:
         sawyer_hand = spec.body("hand")
         # The hand's +x axis is the gripper axis; the pads (centred on the hand origin) close along hand y.
         sawyer_hand.add_site(name="grasp_site", pos=[0.0, 0, 0], size=[0.006, 0, 0])
-        sawyer_hand.add_camera(name="wrist", pos=[-0.04, 0, 0], xyaxes=[0, 1, 0, 0, 0, -1], fovy=75)
+        sawyer_hand.add_camera(
+            name="wrist", pos=list(SAWYER_WRIST_POS), xyaxes=list(SAWYER_WRIST_XYAXES), fovy=SAWYER_WRIST_FOVY
+        )
     for body in spec.bodies:
         if body.name.startswith(info.body_prefix):
             body.gravcomp = 1.0
