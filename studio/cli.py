@@ -16,6 +16,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("studio.bench", "run a benchmark and print one JSON object"),
     "train": ("studio.model.train_command", "train OSVI-WM on recorded episodes (resumable, torchrun-ready)"),
     "train-decoder": ("studio.model.decoder_command", "train the latent image decoder of a trained model"),
+    "pretrain-encoder": (
+        "studio.model.pretrain_command",
+        "self-supervised pretraining of the encoder on stored frames (a start for studio train --init)",
+    ),
     "export-policy": (
         "studio.model.policy_export",
         "write a small inference file from a training checkpoint",

@@ -51,6 +51,7 @@ from studio.model.demo_task import demo_task_loss, label_table
 from studio.model.losses import alpha as alpha_at
 from studio.model.losses import waypoint_errors, waypoint_loss, world_model_loss
 from studio.model.osvi_wm import OSVIWM
+from studio.model.pretrain_encoder import is_pretrained_encoder, load_pretrained_encoder
 from studio.model.reversal import reverse_pairs
 from studio.model.run_files import write_json
 from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, plan_batches
@@ -268,7 +269,8 @@ def train(
     configuration (fine-tuning on new data, or a curriculum over task sets), with a fresh optimiser and schedule;
     it is ignored when the run resumes from its own ``last.pt``. Two differences are allowed: a demonstration-task
     head that is new or names other labels, and a world model the checkpoint does not have (``init`` from the
-    no-world-model ablation): either starts untrained.
+    no-world-model ablation): either starts untrained. A pretrained encoder (``studio pretrain-encoder``) starts
+    the encoder only.
 
     Under ``torchrun`` the process group is joined here unless the caller already did; a group joined here is
     also left here, after a barrier, so that no rank tears its gloo connections down while a peer still talks on
@@ -453,7 +455,16 @@ def _train(
 
 
 def _load_init(model: OSVIWM, run: RunConfig, init: str | Path, device: torch.device) -> None:
-    """Start ``model`` from the weights of the checkpoint or policy file ``init`` (see ``train``)."""
+    """Start ``model`` from the weights of the checkpoint or policy file ``init`` (see ``train``), or only its
+    encoder from a pretrained encoder (``studio pretrain-encoder``)."""
+    raw = torch.load(init, map_location=device, weights_only=False)
+    if is_pretrained_encoder(raw):
+        try:
+            load_pretrained_encoder(model, raw, init)
+        except ValueError as exc:
+            raise CheckpointMismatch(str(exc)) from exc
+        return
+    del raw
     start = load_checkpoint(init, device)
     saved = dict(start["config"]["model"])
     # A demonstration-task head may be added to a checkpoint trained without one, or one naming other labels
