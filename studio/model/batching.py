@@ -17,7 +17,7 @@ samples into a ``Batch``, storing each expert video once (``expert_ids`` maps pa
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, fields
 from typing import Any, Protocol, runtime_checkable
 
@@ -58,6 +58,10 @@ class Batch:
     @property
     def size(self) -> int:
         return int(self.agent_frames.shape[0])
+
+    def all_frames(self) -> torch.Tensor:
+        """Every expert frame, then every agent frame: (U·N + B·M, 3, H, W) uint8."""
+        return torch.cat([self.expert_frames.flatten(0, 1), self.agent_frames.flatten(0, 1)], 0)
 
 
 _REQUIRED = ("expert_frames", "agent_frames", "path", "K", "T_world_cam", "task_index", "expert_index")
@@ -122,6 +126,24 @@ def collate_pairs(
         expert_tasks=torch.tensor([int(s["task_index"]) for s in unique], dtype=torch.long),
         agent_tasks=tasks,
     )
+
+
+def validation_batches(
+    source: PairSource,
+    batch_size: int,
+    max_batches: int,
+    image_size: tuple[int, int],
+    n_expert: int,
+    n_agent: int,
+) -> Iterator[Batch]:
+    """Up to ``max_batches`` (0: all) batches of consecutive samples, spread evenly over ``source``: the
+    validation batches of the decoder and encoder trainers."""
+    bs = min(batch_size, len(source))
+    n = len(source) // bs
+    if max_batches > 0:
+        n = min(n, max_batches)
+    for s in np.linspace(0, len(source) - bs, n).round().astype(int):
+        yield collate_pairs([source[int(i)] for i in range(s, s + bs)], image_size, n_expert, n_agent)
 
 
 def _resize(frames: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -34,12 +33,12 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs
+from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, validation_batches
 from studio.model.config import DecoderConfig, ModelConfig, RunConfig
 from studio.model.decoder import LatentDecoder
 from studio.model.osvi_wm import OSVIWM
 from studio.model.run_files import write_json
-from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, plan_batches
+from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, cosine_schedule, plan_batches
 
 ENCODER_FORMAT = "osvi-wm-encoder/1"
 #: The decoder redraws frames at 1/RECON_DOWNSCALE of the model's input size.
@@ -70,10 +69,6 @@ def load_pretrained_encoder(model: OSVIWM, ckpt: dict[str, Any], source: str | P
 
 def _as_lists(v: Any) -> Any:
     return [_as_lists(x) for x in v] if isinstance(v, (list, tuple)) else v
-
-
-def _frames(batch: Batch) -> torch.Tensor:
-    return torch.cat([batch.expert_frames.flatten(0, 1), batch.agent_frames.flatten(0, 1)], 0)
 
 
 class SpatialAutoencoder(torch.nn.Module):
@@ -109,24 +104,23 @@ def validate_autoencoder(
     cfg: DecoderConfig,
     device: torch.device,
 ) -> dict[str, float]:
-    bs = min(cfg.batch_size, len(source))
-    n = len(source) // bs
-    if cfg.val_batches > 0:
-        n = min(n, cfg.val_batches)
-    starts = np.linspace(0, len(source) - bs, n).round().astype(int)
+    batches = validation_batches(
+        source,
+        cfg.batch_size,
+        cfg.val_batches,
+        model_cfg.image_size,
+        model_cfg.n_expert_frames,
+        model_cfg.n_agent_frames,
+    )
     net.eval()
-    recon = 0.0
+    recon = []
     try:
-        for s in starts:
-            samples = [source[int(i)] for i in range(s, s + bs)]
-            batch = collate_pairs(
-                samples, model_cfg.image_size, model_cfg.n_expert_frames, model_cfg.n_agent_frames
-            ).to(device)
-            frames = _frames(batch)
-            recon += float(F.mse_loss(net(frames), net.target(frames))) / len(starts)
+        for batch in batches:
+            frames = batch.to(device).all_frames()
+            recon.append(float(F.mse_loss(net(frames), net.target(frames))))
     finally:
         net.train()
-    return {"val_recon_mse": recon}
+    return {"val_recon_mse": float(np.mean(recon))}
 
 
 def pretrain_encoder(
@@ -151,16 +145,9 @@ def pretrain_encoder(
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     net = SpatialAutoencoder(run.model, cfg).to(device)
-    optimizer = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    optimizer = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
     total = cfg.steps
-    warmup = max(1, total // 20)
-    scheduler = torch.optim.lr_scheduler.LambdaLR(
-        optimizer,
-        lambda s: (
-            min(1.0, (s + 1) / warmup)
-            * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(s / max(total - 1, 1), 1.0))))
-        ),
-    )
+    scheduler = cosine_schedule(optimizer, total, warmup=max(1, total // 20))
     fingerprint = train_set.fingerprint()
     model_config = dataclasses.asdict(run.model)
     config = {
@@ -186,9 +173,8 @@ def pretrain_encoder(
     def without_steps(c: dict[str, Any]) -> dict[str, Any]:
         return {**c, "pretrain": {**c.get("pretrain", {}), "steps": None}}
 
-    def same_run(
-        saved: Any,
-    ) -> bool:  # another --steps lengthens or shortens the run; nothing else may change
+    def same_run(saved: Any) -> bool:
+        """Whether ``saved`` is this run's configuration, up to its length (--steps may change on resume)."""
         return isinstance(saved, dict) and without_steps(saved) == without_steps(config)
 
     def restore(ckpt: dict[str, Any]) -> None:
@@ -218,7 +204,7 @@ def pretrain_encoder(
 
     def one_step(step: int, batch: Batch, seed: int) -> StepOutput:
         g = torch.Generator(device="cpu").manual_seed(seed)
-        frames = _frames(batch.to(device))
+        frames = batch.to(device).all_frames()
         keys = net.keypoints(frames)
         noise = torch.randn(keys.shape, generator=g).to(device) * cfg.noise_std
         loss = F.mse_loss(net.decoder(keys + noise), net.target(frames))

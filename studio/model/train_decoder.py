@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -27,13 +26,13 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs
+from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, validation_batches
 from studio.model.config import DecoderConfig
 from studio.model.decoder import LatentDecoder
 from studio.model.osvi_wm import OSVIWM
 from studio.model.run_files import write_json
 from studio.model.train import load_checkpoint, model_from_checkpoint
-from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, plan_batches
+from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, cosine_schedule, plan_batches
 
 DECODER_FORMAT = "osvi-wm-decoder/1"
 
@@ -53,10 +52,6 @@ def _model_id(ckpt: dict[str, Any]) -> str:
     return h.hexdigest()[:16]
 
 
-def _frames(model: OSVIWM, batch: Batch) -> torch.Tensor:
-    return torch.cat([batch.expert_frames.flatten(0, 1), batch.agent_frames.flatten(0, 1)], 0)
-
-
 @torch.no_grad()
 def _keypoints(model: OSVIWM, frames: torch.Tensor) -> torch.Tensor:
     return model.pool(model.encode(frames)).float()
@@ -66,28 +61,23 @@ def _keypoints(model: OSVIWM, frames: torch.Tensor) -> torch.Tensor:
 def validate_decoder(
     decoder: LatentDecoder, model: OSVIWM, source: PairSource, cfg: DecoderConfig, device: torch.device
 ) -> dict[str, float]:
-    bs = min(cfg.batch_size, len(source))
-    n = len(source) // bs
-    if cfg.val_batches > 0:
-        n = min(n, cfg.val_batches)
-    starts = np.linspace(0, len(source) - bs, n).round().astype(int)
+    m = model.cfg
+    batches = validation_batches(
+        source, cfg.batch_size, cfg.val_batches, m.image_size, m.n_expert_frames, m.n_agent_frames
+    )
     decoder.eval()
-    recon = pred = 0.0
+    recon, pred = [], []
     try:
-        for s in starts:
-            samples = [source[int(i)] for i in range(s, s + bs)]
-            batch = collate_pairs(
-                samples, model.cfg.image_size, model.cfg.n_expert_frames, model.cfg.n_agent_frames
-            )
+        for batch in batches:
             batch = batch.to(device)
-            frames = _frames(model, batch)
-            recon += float(F.mse_loss(decoder(_keypoints(model, frames)), frames.float() / 255)) / len(starts)
+            frames = batch.all_frames()
+            recon.append(float(F.mse_loss(decoder(_keypoints(model, frames)), frames.float() / 255)))
             out = model(batch.expert_frames, batch.agent_frames, batch.expert_ids)
             future = batch.agent_frames[:, model.target_frame_indices()][:, : out.pooled.shape[1]]
-            pred += float(F.mse_loss(decoder(out.pooled.float()), future.float() / 255)) / len(starts)
+            pred.append(float(F.mse_loss(decoder(out.pooled.float()), future.float() / 255)))
     finally:
         decoder.train()
-    return {"val_recon_mse": recon, "val_pred_mse": pred}
+    return {"val_recon_mse": float(np.mean(recon)), "val_pred_mse": float(np.mean(pred))}
 
 
 def train_decoder(
@@ -119,9 +109,7 @@ def train_decoder(
     decoder = LatentDecoder(model.pooled_dim, model.cfg.image_size, cfg).to(device)
     optimizer = torch.optim.AdamW(decoder.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
     total = cfg.steps
-    scheduler = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda s: 0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(s / max(total - 1, 1), 1.0)))
-    )
+    scheduler = cosine_schedule(optimizer, total)
     model_id = _model_id(main_ckpt)
     fingerprint = train_set.fingerprint()
     config = dataclasses.asdict(cfg)
@@ -174,7 +162,7 @@ def train_decoder(
 
     def one_step(step: int, batch: Batch, seed: int) -> StepOutput:
         g = torch.Generator(device="cpu").manual_seed(seed)
-        frames = _frames(model, batch.to(device))
+        frames = batch.to(device).all_frames()
         keys = _keypoints(model, frames)
         noise = torch.randn(keys.shape, generator=g).to(device) * cfg.noise_std
         loss = F.mse_loss(decoder(keys + noise), frames.float() / 255)

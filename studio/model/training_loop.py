@@ -26,6 +26,7 @@ meet after each validation and agree on cancellation.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -67,6 +68,19 @@ class StepOutput:
 
     parts: dict[str, float]
     lr: float
+
+
+def cosine_schedule(
+    optimizer: torch.optim.Optimizer, total: int, warmup: int = 0
+) -> torch.optim.lr_scheduler.LambdaLR:
+    """Linear warm-up over ``warmup`` steps, then a cosine decay to 1/100 of the optimiser's rate at ``total``:
+    the schedule of the decoder and encoder trainers."""
+
+    def factor(step: int) -> float:
+        ramp = min(1.0, (step + 1) / warmup) if warmup > 0 else 1.0
+        return ramp * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(step / max(total - 1, 1), 1.0))))
+
+    return torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
 
 
 def _seed_worker(worker_id: int) -> None:
