@@ -7,9 +7,9 @@ frame to C maps; the same spatial-softmax pooling the waypoint head reads turns 
 :class:`~studio.model.decoder.LatentDecoder` must redraw the frame from those 2C numbers alone (mean squared
 error on RGB in [0, 1] at half the frame's size, Gaussian noise of ``noise_std`` on the keypoints; the half-size
 target keeps the decoder cheap — the encoder's backward pass is most of a step). With 128 numbers for a frame
-the keypoints have to follow what changes between frames (the arm, the objects, handles and doors), which is
-what the planner needs to find in a scene it has not seen (Finn et al. 2016, "Deep spatial autoencoders for
-visuomotor learning").
+the keypoints have to follow what changes between frames (Finn et al. 2016, "Deep spatial autoencoders for
+visuomotor learning"). Measured on Meta-World they mostly follow the arm, and a run started from them generalised
+worse than one started from random weights (docs/results.md), so no recipe there uses this stage.
 
 Frames are the expert and agent frames of pairs from the chosen tasks' stored episodes (``tasks="train"``: the
 split's training tasks; ``"all"``: every task of the scene, held-out ones included — their frames only, which

@@ -457,15 +457,17 @@ def _train(
 def _load_init(model: OSVIWM, run: RunConfig, init: str | Path, device: torch.device) -> None:
     """Start ``model`` from the weights of the checkpoint or policy file ``init`` (see ``train``), or only its
     encoder from a pretrained encoder (``studio pretrain-encoder``)."""
-    raw = torch.load(init, map_location=device, weights_only=False)
-    if is_pretrained_encoder(raw):
+    start = torch.load(init, map_location=device, weights_only=False)
+    if is_pretrained_encoder(start):
         try:
-            load_pretrained_encoder(model, raw, init)
+            load_pretrained_encoder(model, start, init)
         except ValueError as exc:
             raise CheckpointMismatch(str(exc)) from exc
         return
-    del raw
-    start = load_checkpoint(init, device)
+    if not isinstance(start, dict) or start.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(
+            f"{init} is not an OSVI-WM checkpoint (format {CHECKPOINT_FORMAT}) nor a pretrained encoder"
+        )
     saved = dict(start["config"]["model"])
     # A demonstration-task head may be added to a checkpoint trained without one, or one naming other labels
     # replaced (either starts untrained).

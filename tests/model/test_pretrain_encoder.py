@@ -108,3 +108,11 @@ def test_an_interrupted_pretraining_resumes_where_it_stopped(tmp_path):
     other = dataclasses.replace(longer, lr=1e-2)
     with pytest.raises(ValueError, match="another configuration or dataset"):
         pretrain_encoder(tiny_run_config(), SyntheticPairs(), None, tmp_path, other, show_progress=False)
+
+
+def test_init_from_a_file_that_is_neither_checkpoint_nor_encoder_is_refused(tmp_path):
+    run = tiny_run_config()
+    bogus = tmp_path / "bogus.pt"
+    torch.save({"format": "something-else/1", "weights": torch.zeros(2)}, bogus)
+    with pytest.raises(ValueError, match="nor a pretrained encoder"):
+        _load_init(OSVIWM(run.model), run, bogus, torch.device("cpu"))
