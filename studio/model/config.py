@@ -77,6 +77,10 @@ class ModelConfig:
             ``TrainConfig.demo_task_weight`` > 0; ``OSVIWM`` docstring.
         demo_task_groups, demo_task_table: what that classifier names — its logits split into groups and the
             class of each training task in each group (``demo_task``; empty: one group, task i is class i).
+        guidance: demonstration guidance at planning (not in the paper; ``guidance``): the plan's raw rows are
+            null + guidance · (demonstration − null), planned with the demonstration and with the null one.
+            1 plans from the demonstration alone; other values need a model trained with
+            ``TrainConfig.demo_dropout``. A planning setting: ``studio export-policy --guidance`` writes it.
     """
 
     image_size: tuple[int, int] = (240, 320)
@@ -111,6 +115,7 @@ class ModelConfig:
     demo_task_classes: int = 0
     demo_task_groups: tuple[int, ...] = ()
     demo_task_table: tuple[tuple[int, ...], ...] = ()
+    guidance: float = 1.0
 
     def __post_init__(self) -> None:
         # JSON gives lists where the fields hold tuples; image_size's length is checked below
@@ -139,6 +144,8 @@ class ModelConfig:
             raise ValueError(f"max_waypoints must be >= 1, got {self.max_waypoints}")
         if self.depth_scale <= 0:
             raise ValueError(f"depth_scale must be positive, got {self.depth_scale}")
+        if not 0.0 <= self.guidance <= 10.0:
+            raise ValueError(f"guidance must be in [0, 10], got {self.guidance}")
 
     @property
     def waypoint_rows(self) -> int:
@@ -196,6 +203,10 @@ class TrainConfig:
         reverse: probability of playing a demonstration and its agent clips backwards, as a pair of the task
             that undoes it (not in the paper; ``reversal``): a scene seen with one motion only (Meta-World closes
             the window, never opens it) is then seen with both, told apart by the demonstration alone.
+        demo_dropout: probability of replacing a demonstration (and so every pair imitating it) by the null
+            demonstration, black frames (not in the paper; ``guidance``), so that the model also plans from the
+            scene alone and can be planned with ``ModelConfig.guidance``. Drawn with the augmentation (after
+            ``aug_warmup``).
         freeze: parts of the network left as they start (no gradient, BatchNorm statistics kept): any of
             ``FREEZABLE`` (a comma-separated string or a list). Meant for ``--init`` runs, e.g. adding 𝒲 to a
             no-world-model checkpoint while the encoder and π it inherits stay as they are.
@@ -248,6 +259,7 @@ class TrainConfig:
     pair_hue: float = 0.0
     pair_channels: float = 0.0
     reverse: float = 0.0
+    demo_dropout: float = 0.0
     freeze: tuple[str, ...] = ()
     mixup: bool = True
     mixup_min: float = 0.3
@@ -294,6 +306,8 @@ class TrainConfig:
             raise ValueError(f"precision must be 'fp32' or 'bf16', got {self.precision!r}")
         if not 0.0 <= self.reverse <= 1.0:
             raise ValueError(f"reverse must be a probability in [0, 1], got {self.reverse}")
+        if not 0.0 <= self.demo_dropout < 1.0:
+            raise ValueError(f"demo_dropout must be a probability in [0, 1), got {self.demo_dropout}")
         if not 0.0 < self.mixup_min <= 1.0:
             raise ValueError(f"mixup_min must be in (0, 1], got {self.mixup_min}")
         if self.demo_task_weight < 0:

@@ -13,6 +13,10 @@ only the new agent frame is encoded. Runs in eval mode under ``torch.inference_m
 model whose encoder has its BatchNorms folded into the convolutions; ``precision="bf16"`` (opt-in) runs the
 encoder — most of the planning time — under bfloat16 autocast, 2–3× faster on CPUs with AMX/AVX-512-BF16 at
 ~1 % relative error in the encodings; the small sequence models stay in float32.
+
+A model whose configuration asks for demonstration guidance (``ModelConfig.guidance`` ≠ 1; ``guidance``) is
+also planned from the null demonstration, whose context is computed once, and its rows combined with the
+demonstration's; the latent trajectory returned is the demonstration's own.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import torch
 from torch.nn import functional as F
 
 from studio.model.geometry import camera_to_world, resize_intrinsics
+from studio.model.guidance import guide, null_demonstration
 from studio.model.osvi_wm import OSVIWM, waypoint_set
 from studio.model.transformer import KVCache
 
@@ -104,6 +109,7 @@ class Planner:
         self._class_names: list[list[str]] | None = None
         self._context_key: str | None = None
         self._context: KVCache | None = None
+        self._null_context: KVCache | None = None
 
     @classmethod
     def load(
@@ -151,6 +157,16 @@ class Planner:
             expert = expert[np.round(np.linspace(0, expert.shape[0] - 1, n)).astype(int)]
         return _resize(expert, _hw(self.cfg.image_size)).to(self.device)
 
+    def _plan_without_demonstration(self, expert: torch.Tensor, agent_state: torch.Tensor) -> torch.Tensor:
+        """Raw rows planned from the null demonstration (its context made on the first call)."""
+        model = self.model
+        if self._null_context is None:
+            with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+                encoded = model.encode(null_demonstration(expert)).float()
+            self._null_context = model.action_model.context(encoded.unsqueeze(0))
+        _, states = model.rollout_from_context(self._null_context, agent_state)
+        return model.predict_waypoints(model.pool(states))
+
     @torch.inference_mode()
     def plan(
         self,
@@ -193,6 +209,8 @@ class Planner:
         pooled = model.pool(states)
         t3 = time.perf_counter()
         raw = model.predict_waypoints(pooled)
+        if self.cfg.guidance != 1.0:
+            raw = guide(raw, self._plan_without_demonstration(expert, agent_state), self.cfg.guidance)
         decoded = model.decode_waypoints(
             waypoint_set(raw, self.cfg.max_waypoints), K_model[None].to(self.device)
         )

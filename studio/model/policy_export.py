@@ -1,6 +1,6 @@
 """`studio export-policy`: turn a training checkpoint (and its latent decoder) into a small inference file.
 
-    studio export-policy RUN_DIR/best.pt OUT.pt [--decoder DECODER_DIR/best.pt] [--fp32]
+    studio export-policy RUN_DIR/best.pt OUT.pt [--decoder DECODER_DIR/best.pt] [--fp32] [--guidance G]
 
 The policy file keeps everything planning needs — the checkpoint format, full configuration, dataset
 fingerprint, trained tasks, step — and drops the optimiser and scheduler state (two thirds of a training
@@ -31,8 +31,9 @@ def _weights(state: dict[str, torch.Tensor], half: bool) -> dict[str, torch.Tens
 
 
 def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Path | None = None,
-                  half: bool = True) -> dict[str, int]:  # fmt: skip
-    """Write the policy (and decoder) files; returns their sizes in bytes."""
+                  half: bool = True, guidance: float | None = None) -> dict[str, int]:  # fmt: skip
+    """Write the policy (and decoder) files; returns their sizes in bytes. ``guidance`` sets the policy's
+    demonstration guidance (``ModelConfig.guidance``; None keeps the checkpoint's)."""
     from studio.model.train import load_checkpoint
     from studio.model.train_decoder import DECODER_FORMAT
 
@@ -42,6 +43,11 @@ def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Pat
     policy = {k: v for k, v in ckpt.items() if k not in TRAINING_ONLY}
     policy["model"] = _weights(ckpt["model"], half)
     policy["exported_from"] = str(checkpoint)
+    if guidance is not None:
+        from studio.model.config import RunConfig
+
+        run = RunConfig.from_dict(ckpt["config"]).with_overrides([f"model.guidance={guidance}"])
+        policy["config"] = run.to_dict()
     atomic_save(policy, out)
     sizes = {"policy_bytes": out.stat().st_size}
     if decoder is not None:
@@ -61,11 +67,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out", help="policy file to write, e.g. studio/policies/pick_place.pt")
     parser.add_argument("--decoder", help="the model's latent decoder checkpoint (DECODER_DIR/best.pt)")
     parser.add_argument("--fp32", action="store_true", help="keep float32 weights (twice the size)")
+    parser.add_argument(
+        "--guidance",
+        type=float,
+        help="plan with this demonstration guidance (ModelConfig.guidance; for models trained with "
+        "train.demo_dropout; default: the checkpoint's)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        sizes = export_policy(args.checkpoint, args.out, decoder=args.decoder, half=not args.fp32)
+        sizes = export_policy(
+            args.checkpoint, args.out, decoder=args.decoder, half=not args.fp32, guidance=args.guidance
+        )
     except (FileNotFoundError, ValueError) as e:
         print(f"studio export-policy: {e}", file=sys.stderr)
         return 2

@@ -48,6 +48,7 @@ from studio.model.augment import augment_batch
 from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, expert_indices_of
 from studio.model.config import ModelConfig, RunConfig, TrainConfig
 from studio.model.demo_task import demo_task_loss, label_table
+from studio.model.guidance import drop_demonstrations
 from studio.model.losses import alpha as alpha_at
 from studio.model.losses import waypoint_errors, waypoint_loss, world_model_loss
 from studio.model.osvi_wm import OSVIWM
@@ -152,6 +153,8 @@ def compute_losses(
                 generator,
             )
         expert, agent, K = aug.expert_frames, aug.agent_frames, aug.K
+        if cfg.demo_dropout > 0:
+            expert, _ = drop_demonstrations(expert, cfg.demo_dropout, generator)
     else:
         expert, agent, K = batch.expert_frames, batch.agent_frames, batch.K
     a = alpha_at(step, total, cfg)

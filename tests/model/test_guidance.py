@@ -1,0 +1,114 @@
+"""Demonstration guidance: dropped demonstrations are black, per demonstration, only in training steps; a guided
+plan is the null plan plus g times the demonstration's displacement of it; export-policy writes g."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from synthetic_pairs import SyntheticPairs, tiny_run_config
+
+from studio.model.batching import collate_pairs
+from studio.model.config import ModelConfig, TrainConfig
+from studio.model.guidance import drop_demonstrations, guide
+from studio.model.osvi_wm import OSVIWM
+from studio.model.planner import Planner
+from studio.model.policy_export import export_policy
+from studio.model.train import compute_losses, load_checkpoint, train
+
+torch.set_num_threads(1)
+
+
+def test_dropping_blackens_whole_demonstrations_and_leaves_the_rest_and_the_input_alone():
+    frames = torch.randint(1, 255, (6, 3, 3, 8, 8), dtype=torch.uint8)
+    seen_mixed = False
+    for seed in range(10):
+        out, chosen = drop_demonstrations(frames, 0.5, torch.Generator().manual_seed(seed))
+        seen_mixed |= bool(chosen.any()) and not bool(chosen.all())
+        for u in range(6):
+            assert torch.equal(out[u], torch.zeros_like(frames[u]) if chosen[u] else frames[u])
+    assert seen_mixed
+    assert bool((frames > 0).all())  # the input was not changed in place
+    same, chosen = drop_demonstrations(frames, 0.0, torch.Generator().manual_seed(0))
+    assert same is frames and not chosen.any()
+
+
+def test_guide_is_the_null_rows_plus_g_times_the_demonstrations_displacement():
+    demo, null = torch.tensor([1.0, -2.0]), torch.tensor([0.5, 1.0])
+    assert torch.equal(guide(demo, null, 1.0), demo)
+    assert torch.equal(guide(demo, null, 0.0), null)
+    assert torch.allclose(guide(demo, null, 3.0), torch.tensor([2.0, -8.0]))
+
+
+def test_training_steps_see_black_demonstrations_and_validation_never_does():
+    run = tiny_run_config()
+    data = SyntheticPairs(n_tasks=3, episodes_per_task=2)
+    batch = collate_pairs([data[i] for i in (0, 1, 4, 5, 8, 9)], run.model.image_size)
+    torch.manual_seed(0)
+    core = OSVIWM(run.model).eval()
+    seen: list[torch.Tensor] = []
+
+    def recording(expert, agent, expert_ids, targets):
+        seen.append(expert)
+        return core(expert, agent, expert_ids, targets=targets)
+
+    def black(run_, generator) -> list[bool]:
+        seen.clear()
+        compute_losses(recording, core, batch, run_, 5, 10, generator)
+        return [bool((e == 0).all()) for e in seen[0]]
+
+    dropping = run.with_overrides(["train.demo_dropout=0.6"])
+    draws = [black(dropping, torch.Generator().manual_seed(s)) for s in range(6)]
+    assert any(any(d) for d in draws) and not all(all(d) for d in draws)
+    assert not any(black(run, torch.Generator().manual_seed(0)))  # off by default
+    assert not any(black(dropping, None))  # validation: no generator, no dropping
+
+
+def test_demo_dropout_and_guidance_are_checked():
+    with pytest.raises(ValueError, match="demo_dropout must be a probability"):
+        TrainConfig(demo_dropout=1.0)
+    with pytest.raises(ValueError, match="guidance must be in"):
+        ModelConfig(image_size=(32, 32), guidance=-1.0)
+
+
+def _planner(guidance: float, weights: dict) -> Planner:
+    run = tiny_run_config().with_overrides([f"model.guidance={guidance}"])
+    model = OSVIWM(run.model)
+    model.load_state_dict(weights)
+    return Planner(model)
+
+
+def test_a_guided_plan_extrapolates_from_the_null_plan_through_the_demonstrations():
+    torch.manual_seed(0)
+    weights = OSVIWM(tiny_run_config().model).state_dict()
+    sample = SyntheticPairs()[0]
+    expert, agent, K = sample["expert_frames"], sample["agent_frames"][0], sample["K"]
+    plans = {g: _planner(g, weights).plan(expert, agent, K, np.eye(4)) for g in (0.0, 1.0, 4.0)}
+    # g = 0 is the plan from black frames; g = 1 is the demonstration alone
+    black = _planner(1.0, weights).plan(np.zeros_like(np.asarray(expert)), agent, K, np.eye(4))
+    assert np.allclose(plans[0.0].waypoints_cam, black.waypoints_cam, atol=1e-6)
+    assert np.allclose(plans[1.0].latent_states, plans[4.0].latent_states)  # the demonstration's trajectory
+
+    # depth, x/z and the gripper logit are affine in the raw rows, so they extrapolate: v(4) = 4 v(1) − 3 v(0)
+    def parts(p):
+        cam = p.waypoints_cam.astype(np.float64)
+        prob = np.clip(cam[:, 3], 1e-9, 1 - 1e-9)
+        return np.stack([cam[:, 2], cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2], np.log(prob / (1 - prob))])
+
+    v0, v1, v4 = parts(plans[0.0]), parts(plans[1.0]), parts(plans[4.0])
+    assert np.abs(v1 - v0).max() > 3e-4  # the demonstration moves the plan (untrained: a little)
+    assert np.abs(v4 - (4 * v1 - 3 * v0)).max() < 2e-5
+    assert np.abs(v4 - v1).max() > 1e-3
+
+
+def test_export_policy_writes_the_guidance_the_planner_then_uses(tmp_path):
+    train(tiny_run_config(max_steps=2, batch_size=4, val_every=100), SyntheticPairs(), None, tmp_path / "run",
+          show_progress=False)  # fmt: skip
+    export_policy(tmp_path / "run" / "last.pt", tmp_path / "g2.pt", guidance=2.0)
+    written = load_checkpoint(tmp_path / "g2.pt")["config"]
+    original = load_checkpoint(tmp_path / "run" / "last.pt")["config"]
+    assert written["model"]["guidance"] == 2.0 and original["model"]["guidance"] == 1.0
+    assert written["train"] == original["train"]
+    assert Planner.load(tmp_path / "g2.pt").cfg.guidance == 2.0
+    export_policy(tmp_path / "run" / "last.pt", tmp_path / "same.pt")
+    assert load_checkpoint(tmp_path / "same.pt")["config"] == original
