@@ -16,6 +16,10 @@ it), the planner learns to answer the scene, and the demonstration's part in the
 amplifies that part at planning time without changing the scenes the model was trained on. A model trained
 without ``demo_dropout`` has never seen the null demonstration, so guidance is meaningful only for models
 trained with it.
+
+Measured on Meta-World (docs/experiments.md): at g = 5 the hard tasks' first plans push the demonstration's way
+and the hard tasks without re-plans rise from 4 to 24.5 %, while the easy tasks, where the scene alone already
+points at the demonstrated motion, fall from 52 to 7 % without re-plans. Off by default (g = 1).
 """
 
 from __future__ import annotations
