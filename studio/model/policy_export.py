@@ -47,6 +47,11 @@ def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Pat
         from studio.model.config import RunConfig
 
         run = RunConfig.from_dict(ckpt["config"]).with_overrides([f"model.guidance={guidance}"])
+        if guidance != 1.0 and run.train.demo_dropout == 0.0:
+            raise ValueError(
+                f"{checkpoint} was trained without train.demo_dropout: it has never planned from the null "
+                "demonstration, so guidance would extrapolate from an untrained plan"
+            )
         policy["config"] = run.to_dict()
     atomic_save(policy, out)
     sizes = {"policy_bytes": out.stat().st_size}

@@ -101,9 +101,9 @@ def test_a_guided_plan_extrapolates_from_the_null_plan_through_the_demonstration
     assert np.abs(v4 - v1).max() > 1e-3
 
 
-def test_export_policy_writes_the_guidance_the_planner_then_uses(tmp_path):
-    train(tiny_run_config(max_steps=2, batch_size=4, val_every=100), SyntheticPairs(), None, tmp_path / "run",
-          show_progress=False)  # fmt: skip
+def test_export_policy_writes_the_guidance_the_planner_then_uses_and_refuses_models_never_dropped(tmp_path):
+    run = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(["train.demo_dropout=0.5"])
+    train(run, SyntheticPairs(), None, tmp_path / "run", show_progress=False)
     export_policy(tmp_path / "run" / "last.pt", tmp_path / "g2.pt", guidance=2.0)
     written = load_checkpoint(tmp_path / "g2.pt")["config"]
     original = load_checkpoint(tmp_path / "run" / "last.pt")["config"]
@@ -112,3 +112,8 @@ def test_export_policy_writes_the_guidance_the_planner_then_uses(tmp_path):
     assert Planner.load(tmp_path / "g2.pt").cfg.guidance == 2.0
     export_policy(tmp_path / "run" / "last.pt", tmp_path / "same.pt")
     assert load_checkpoint(tmp_path / "same.pt")["config"] == original
+    unguided = tiny_run_config(max_steps=1, batch_size=4, val_every=100)
+    train(unguided, SyntheticPairs(), None, tmp_path / "plain", show_progress=False)
+    with pytest.raises(ValueError, match="trained without train"):
+        export_policy(tmp_path / "plain" / "last.pt", tmp_path / "bad.pt", guidance=3.0)
+    assert not (tmp_path / "bad.pt").exists()
