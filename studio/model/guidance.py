@@ -44,7 +44,8 @@ def drop_demonstrations(
     if not bool(chosen.any()):
         return expert_frames, chosen
     out = expert_frames.clone()
-    out[chosen.to(out.device)] = 0
+    rows = chosen.to(out.device)
+    out[rows] = null_demonstration(out[rows])
     return out, chosen
 
 
