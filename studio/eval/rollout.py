@@ -69,6 +69,8 @@ class PlanRecord:
     pooled_states: np.ndarray | None = None
     #: (S, h, w, 3) uint8: the predicted latent states decoded to images (when the model has a decoder).
     latent_images: np.ndarray | None = None
+    #: (5, 4) with demonstration guidance: the plan from the null demonstration (``PlanResult``).
+    null_waypoints_world: np.ndarray | None = None
 
 
 @dataclass
@@ -172,6 +174,7 @@ def run_rollout(
                 start_tick=env.steps,
                 latent_states=getattr(result, "latent_states", None),
                 pooled_states=getattr(result, "pooled_states", None),
+                null_waypoints_world=getattr(result, "null_waypoints_world", None),
             )
         )
         event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
@@ -237,6 +240,8 @@ def store_rollout(
                 arrays[f"plan{i}_pooled_states"] = np.asarray(p.pooled_states, dtype=np.float32)
             if p.latent_images is not None:
                 arrays[f"plan{i}_latent_images"] = np.asarray(p.latent_images, dtype=np.uint8)
+            if p.null_waypoints_world is not None:
+                arrays[f"plan{i}_null_waypoints_world"] = np.asarray(p.null_waypoints_world)
         arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
         arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
         np.savez_compressed(tmp / "plans.npz", allow_pickle=False, **arrays)

@@ -16,7 +16,8 @@ encoder — most of the planning time — under bfloat16 autocast, 2–3× faste
 
 A model whose configuration asks for demonstration guidance (``ModelConfig.guidance`` ≠ 1; ``guidance``) is
 also planned from the null demonstration, whose context is computed once, and its rows combined with the
-demonstration's; the latent trajectory returned is the demonstration's own.
+demonstration's; the latent trajectory returned is the demonstration's own, and the null plan comes back beside
+the guided one (what the scene alone suggests: how far the demonstration moved the plan is read from the two).
 """
 
 from __future__ import annotations
@@ -49,6 +50,8 @@ class PlanResult:
         pooled_states: (S, 2C) their spatial-softmax keypoints (the latent decoder's input).
         timing: milliseconds of each stage (preprocess, encode, rollout, head, total).
         reused_expert_context: whether the expert context came from the previous call.
+        null_waypoints_world: (5, 4) with demonstration guidance, the plan from the null demonstration alone
+            (what the scene suggests; world frame, like ``waypoints_world``); None without guidance.
     """
 
     waypoints_world: np.ndarray
@@ -57,6 +60,7 @@ class PlanResult:
     pooled_states: np.ndarray
     timing: dict[str, float] = field(default_factory=dict)
     reused_expert_context: bool = False
+    null_waypoints_world: np.ndarray | None = None
 
     @property
     def gripper_closed(self) -> np.ndarray:
@@ -209,14 +213,13 @@ class Planner:
         pooled = model.pool(states)
         t3 = time.perf_counter()
         raw = model.predict_waypoints(pooled)
+        K_dev, T_dev = K_model[None].to(self.device), torch.as_tensor(T, device=self.device)[None]
+        null_world = None
         if self.cfg.guidance != 1.0:
-            raw = guide(raw, self._plan_without_demonstration(expert, agent_state), self.cfg.guidance)
-        decoded = model.decode_waypoints(
-            waypoint_set(raw, self.cfg.max_waypoints), K_model[None].to(self.device)
-        )
-        p_cam = decoded["position"][0].double()
-        p_world = camera_to_world(p_cam[None], torch.as_tensor(T, device=self.device)[None])[0]
-        grip = decoded["gripper"][0].double()[:, None]
+            null_raw = self._plan_without_demonstration(expert, agent_state)
+            null_world = torch.cat(self._waypoints(null_raw, K_dev, T_dev)[1:], 1).cpu().numpy()
+            raw = guide(raw, null_raw, self.cfg.guidance)
+        p_cam, p_world, grip = self._waypoints(raw, K_dev, T_dev)
         t4 = time.perf_counter()
         ms = {
             "preprocess": 1e3 * (t1 - t0),
@@ -232,4 +235,14 @@ class Planner:
             pooled_states=pooled[0].float().cpu().numpy(),
             timing=ms,
             reused_expert_context=reused,
+            null_waypoints_world=null_world,
         )
+
+    def _waypoints(
+        self, raw: torch.Tensor, K: torch.Tensor, T_world_cam: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Raw rows (1, R, 4) → the waypoint set's camera and world positions (5, 3) and gripper (5, 1)."""
+        decoded = self.model.decode_waypoints(waypoint_set(raw, self.cfg.max_waypoints), K)
+        p_cam = decoded["position"][0].double()
+        p_world = camera_to_world(p_cam[None], T_world_cam)[0]
+        return p_cam, p_world, decoded["gripper"][0].double()[:, None]

@@ -149,6 +149,38 @@ def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
         )
 
 
+def test_a_guided_policys_rollouts_keep_the_null_plan_beside_each_plan(tmp_path):
+    root = tmp_path / "data"
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=["pick_place/bar->blue"],
+            episodes=1,
+            data_dir=str(root),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
+    for name, g in (("plain", 1.0), ("guided", 3.0)):
+        ck = write_tiny_checkpoint(tmp_path / name / "best.pt", guidance=g)
+        evaluate(str(ck), ["pick_place/bar->blue"], 1, seed=0, replan=1, data_dir=root, progress=False)
+    with EpisodeStore(root) as store:
+        stored = {
+            r.checkpoint_id: np.load(os.path.join(r.path, "plans.npz")) for r in store.catalog.rollouts()
+        }
+    plain, guided = stored["plain/best"], stored["guided/best"]
+    assert not [k for k in plain if "null" in k]
+    n_plans = sum(k.endswith("_waypoints_world") and "null" not in k for k in guided)
+    assert n_plans == 2  # the untrained policy fails and re-plans once
+    for i in range(n_plans):
+        null, plan = guided[f"plan{i}_null_waypoints_world"], guided[f"plan{i}_waypoints_world"]
+        assert null.shape == plan.shape == (5, 4) and np.isfinite(null).all()
+        assert (
+            np.abs(null[:, :3] - plan[:, :3]).max() > 1e-6
+        )  # guidance moved the plan away from the null one
+
+
 def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_path):
     """`with_budget` gives exactly what evaluating with fewer re-plans gives (same seeds, same episodes)."""
     from studio.eval.evaluation import with_budget

@@ -9,8 +9,9 @@ import sys
 from pathlib import Path
 
 
-def write_tiny_checkpoint(path: str | Path, seed: int = 0) -> Path:
-    """Write an untrained small model (seeded weights) to ``path``, creating its directory; returns the path."""
+def write_tiny_checkpoint(path: str | Path, seed: int = 0, guidance: float = 1.0) -> Path:
+    """Write an untrained small model (seeded weights) to ``path``, creating its directory; returns the path.
+    ``guidance`` ≠ 1 writes a policy that plans with demonstration guidance."""
     import torch
 
     from studio.bench.synthetic_task import tiny_run_config
@@ -20,6 +21,8 @@ def write_tiny_checkpoint(path: str | Path, seed: int = 0) -> Path:
     path = Path(path)
     torch.manual_seed(seed)
     run = tiny_run_config()  # the model the synthetic benchmark trains, untrained here
+    if guidance != 1.0:
+        run = run.with_overrides([f"model.guidance={guidance}", "train.demo_dropout=0.2"])
     model = run.model
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save(

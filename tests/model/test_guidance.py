@@ -87,6 +87,10 @@ def test_a_guided_plan_extrapolates_from_the_null_plan_through_the_demonstration
     # g = 0 is the plan from black frames; g = 1 is the demonstration alone
     black = _planner(1.0, weights).plan(np.zeros_like(np.asarray(expert)), agent, K, np.eye(4))
     assert np.allclose(plans[0.0].waypoints_cam, black.waypoints_cam, atol=1e-6)
+    # a guided plan returns the null plan beside it; the demonstration alone returns none
+    assert plans[1.0].null_waypoints_world is None
+    for g in (0.0, 4.0):
+        assert np.allclose(plans[g].null_waypoints_world, black.waypoints_world, atol=1e-6)
     assert np.allclose(plans[1.0].latent_states, plans[4.0].latent_states)  # the demonstration's trajectory
 
     # depth, x/z and the gripper logit are affine in the raw rows, so they extrapolate: v(4) = 4 v(1) − 3 v(0)
