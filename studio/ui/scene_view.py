@@ -37,6 +37,9 @@ POSITION_EPS = 5e-4
 QUATERNION_EPS = 2e-3
 OPEN_RGB = (40, 170, 90)
 CLOSED_RGB = (220, 70, 40)
+PLAN_RGB = (250, 200, 40)
+#: A guided policy's plan from the null demonstration (the scene alone), drawn beside the plan.
+NULL_PLAN_RGB = (150, 150, 160)
 PATH_RGB = {"open": (60, 130, 230), "closed": (235, 140, 30)}
 #: Triangle budget per mesh in the browser (None: the scene's own meshes).
 MAX_FACES: int | None = 2000
@@ -221,8 +224,16 @@ class SceneView:
             for h in self._overlays.pop(name, []):
                 h.remove()
 
-    def show_waypoints(self, name: str, waypoints: np.ndarray, current: int | None = None) -> None:
-        """The 5 waypoints (rows xyz + gripper probability) as numbered spheres joined by a spline."""
+    def show_waypoints(
+        self,
+        name: str,
+        waypoints: np.ndarray,
+        current: int | None = None,
+        color: tuple[int, int, int] = PLAN_RGB,
+        faint: bool = False,
+    ) -> None:
+        """The 5 waypoints (rows xyz + gripper probability) as numbered spheres joined by a ``color`` spline;
+        ``faint`` draws them half-transparent and smaller (a plan shown for comparison)."""
         wps = np.asarray(waypoints, dtype=np.float64).reshape(-1, 4)
         with self._lock:
             self.clear_overlay(name)
@@ -230,19 +241,20 @@ class SceneView:
             with self.client.atomic():
                 if len(wps) >= 2:
                     handles.append(self.scene.add_spline_catmull_rom(
-                        f"/overlay/{name}/spline", wps[:, :3], thickness=0.004, color=(250, 200, 40)))  # fmt: skip
+                        f"/overlay/{name}/spline", wps[:, :3], thickness=0.003 if faint else 0.004, color=color))  # fmt: skip
                 for i, row in enumerate(wps):
                     closed = row[3] > 0.5
                     big = current == i
                     handles.append(self.scene.add_icosphere(
-                        f"/overlay/{name}/wp{i}", radius=0.028 if big else 0.013,
+                        f"/overlay/{name}/wp{i}", radius=0.028 if big else 0.010 if faint else 0.013,
                         color=CLOSED_RGB if closed else OPEN_RGB, position=row[:3],
-                        opacity=None if big or current is None else 0.55,
+                        opacity=0.35 if faint else None if big or current is None else 0.55,
                     ))  # fmt: skip
-                    handles.append(self.scene.add_label(
-                        f"/overlay/{name}/label{i}", f"{i + 1}{' ●' if closed else ''}",
-                        position=row[:3] + np.array([0.0, 0.0, 0.035]), font_screen_scale=0.8,
-                    ))  # fmt: skip
+                    if not faint:
+                        handles.append(self.scene.add_label(
+                            f"/overlay/{name}/label{i}", f"{i + 1}{' ●' if closed else ''}",
+                            position=row[:3] + np.array([0.0, 0.0, 0.035]), font_screen_scale=0.8,
+                        ))  # fmt: skip
             self._overlays[name] = handles
 
     def clear_overlays(self) -> None:

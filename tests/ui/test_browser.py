@@ -143,6 +143,8 @@ def data_dir(tmp_path_factory):
         # As a model's rollout would store it: predicted latent images with the plan, a registered checkpoint.
         rng = np.random.default_rng(0)
         out.plans[0].latent_images = rng.integers(0, 255, (5, 48, 64, 3), dtype=np.uint8)
+        # ... and, as a guided policy's would, the plan from the null demonstration: here the unshifted one.
+        out.plans[0].null_waypoints_world = out.plans[0].waypoints_world - np.array([0.12, 0.0, 0.0, 0.0])
         with store.catalog.transaction():
             store.catalog.add_run(RunRecord(id="fixture-run", status="done"))
             store.catalog.add_checkpoint(CheckpointRecord(id="fixture-run/best", run_id="fixture-run", step=1,
@@ -494,6 +496,9 @@ def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     mid = ins.replay.poses_at(steps // 2)
     assert not np.allclose(mid, ins.replay.poses_at(0)), "the scene moves along the timeline"
     assert "plan" in tab.view._overlays
+    assert ins.n_plans == 1  # the stored null plan is not counted as a plan of its own
+    assert "null plan" in tab.view._overlays, "a guided rollout shows its plan from the scene alone"
+    assert "guidance moved the plan up to 0.12 m" in ins.plan_info.content
 
 
 @pytest.mark.slow

@@ -1,6 +1,7 @@
 """Rollout inspector: stored rollouts filtered by task, checkpoint and outcome (failures first, with the stage
 they failed at); one replayed with a timeline — scene poses, the camera frame at that moment, the active
-plan's waypoints, and the predicted latent image beside the actual frame when the checkpoint has a decoder.
+plan's waypoints (with a guided policy, also the plan from the scene alone, in grey), and the predicted latent
+image beside the actual frame when the checkpoint has a decoder.
 
 *Fork at this step* restores the simulator exactly as the rollout had it at the timeline's step in this
 tab's teleop session (:mod:`studio.backend.forking`), recording: drag the correction, then save it as a
@@ -10,12 +11,14 @@ episodes forked from a rollout are listed when it is opened."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 
 from studio.backend.messages import Role
 from studio.ui.images import side_by_side, thumbnail
+from studio.ui.scene_view import NULL_PLAN_RGB
 from studio.ui.timeline import Timeline
 
 HINT = """Every rollout (from *Imitate* or `studio eval`) is stored. Filter them, **Open** one and drag the
@@ -229,7 +232,7 @@ class InspectorPanel:
 
     @property
     def n_plans(self) -> int:
-        return sum(1 for k in self.plans if k.endswith("_waypoints_world"))
+        return sum(1 for k in self.plans if re.fullmatch(r"plan\d+_waypoints_world", k))
 
     def plan_at(self, step: int) -> int | None:
         starts = self.plans.get("plan_start_ticks")
@@ -251,11 +254,21 @@ class InspectorPanel:
         text = f"Step {step} of {self.replay.num_steps - 1}; camera frame {fi + 1} of {len(self.frames)}."
         if k is not None:
             wps = self.plans.get(f"plan{k}_waypoints_world")
-            if wps is not None and self.tab.token == self._token:
-                self.tab.view.show_waypoints("plan", wps)
+            null = self.plans.get(f"plan{k}_null_waypoints_world")
+            if self.tab.token == self._token:
+                if wps is not None:
+                    self.tab.view.show_waypoints("plan", wps)
+                if null is not None:
+                    self.tab.view.show_waypoints("null plan", null, color=NULL_PLAN_RGB, faint=True)
+                else:
+                    self.tab.view.clear_overlay("null plan")
             starts = np.asarray(self.plans["plan_start_ticks"])
             end = int(starts[k + 1]) if k + 1 < len(starts) else self.replay.num_steps - 1
             text += f" Plan {k + 1} of {len(starts)} (from step {int(starts[k])})."
+            if null is not None and wps is not None:
+                moved = float(np.linalg.norm(np.asarray(wps)[:, :3] - np.asarray(null)[:, :3], axis=1).max())
+                text += (f" Grey: the plan from the scene alone (the null demonstration); guidance moved the plan "
+                         f"up to {moved:.2f} m from it.")  # fmt: skip
             lat = self.latents.get(k)
             if lat is not None and len(lat):
                 frac = (step - int(starts[k])) / max(1, end - int(starts[k]))
