@@ -47,6 +47,21 @@ class MissThenOracle:
         return self.oracle.plan(expert_frames, agent_frame, K, T_world_cam)
 
 
+def _collect_bar_to_blue(root, episodes: int) -> None:
+    """Scripted Sawyer demonstrations of the held-out pick_place/bar->blue at 120×160, into ``root``."""
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=["pick_place/bar->blue"],
+            episodes=episodes,
+            data_dir=str(root),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
+
+
 @pytest.fixture(scope="module")
 def env():
     e = SimEnv("pick_place", "panda")
@@ -90,17 +105,7 @@ def test_jobs_are_deterministic_and_tasks_resolve():
 
 
 def test_evaluation_is_deterministic_and_stores_rollouts(tmp_path):
-    collect(
-        CollectConfig(
-            scene="pick_place",
-            robot="sawyer",
-            tasks=["pick_place/bar->blue"],
-            episodes=2,
-            data_dir=str(tmp_path),
-            progress=False,
-            image_size=(120, 160),
-        )
-    )
+    _collect_bar_to_blue(tmp_path, 2)
     a = evaluate("oracle", ["pick_place/bar->blue"], 2, seed=3, data_dir=tmp_path, progress=False)
     b = evaluate("oracle", ["pick_place/bar->blue"], 2, seed=3, data_dir=tmp_path, progress=False)
     strip = [(r["seed"], r["expert_episode_id"], r["success"], r["failure_stage"]) for r in a["rows"]]
@@ -123,17 +128,7 @@ def test_missing_demonstrations_give_a_clear_error(tmp_path):
 
 def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
     root = tmp_path / "data"
-    collect(
-        CollectConfig(
-            scene="pick_place",
-            robot="sawyer",
-            tasks=["pick_place/bar->blue"],
-            episodes=1,
-            data_dir=str(root),
-            progress=False,
-            image_size=(120, 160),
-        )
-    )
+    _collect_bar_to_blue(root, 1)
     ck = write_tiny_checkpoint(tmp_path / "run-a" / "best.pt")
     for _ in range(2):  # the second evaluation finds the registration made by the first
         report = evaluate(str(ck), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False)
@@ -151,17 +146,7 @@ def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
 
 def test_a_guided_policys_rollouts_keep_the_null_plan_beside_each_plan(tmp_path):
     root = tmp_path / "data"
-    collect(
-        CollectConfig(
-            scene="pick_place",
-            robot="sawyer",
-            tasks=["pick_place/bar->blue"],
-            episodes=1,
-            data_dir=str(root),
-            progress=False,
-            image_size=(120, 160),
-        )
-    )
+    _collect_bar_to_blue(root, 1)
     for name, g in (("plain", 1.0), ("guided", 3.0)):
         ck = write_tiny_checkpoint(tmp_path / name / "best.pt", guidance=g)
         evaluate(str(ck), ["pick_place/bar->blue"], 1, seed=0, replan=1, data_dir=root, progress=False)
@@ -186,17 +171,7 @@ def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_pa
     from studio.eval.evaluation import with_budget
 
     root = tmp_path / "data"
-    collect(
-        CollectConfig(
-            scene="pick_place",
-            robot="sawyer",
-            tasks=["pick_place/bar->blue"],
-            episodes=1,
-            data_dir=str(root),
-            progress=False,
-            image_size=(120, 160),
-        )
-    )
+    _collect_bar_to_blue(root, 1)
     ck = str(write_tiny_checkpoint(tmp_path / "run" / "best.pt"))
     two = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=2, data_dir=root, progress=False)
     zero = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=0, data_dir=root, progress=False)
@@ -295,8 +270,7 @@ def test_a_rollout_does_not_depend_on_the_number_of_evaluation_workers(tmp_path)
     from studio.data.paths import SHIPPED_POLICY_DIR
 
     root = tmp_path / "data"
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue"], episodes=2,
-                          data_dir=str(root), progress=False, image_size=(120, 160)))  # fmt: skip
+    _collect_bar_to_blue(root, 2)
     ck = str(SHIPPED_POLICY_DIR / "pick-place-cpu.pt")
     threads = torch.get_num_threads()
     one = evaluate(ck, ["pick_place/bar->blue"], 2, seed=4, workers=1, data_dir=root, progress=False)
