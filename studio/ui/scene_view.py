@@ -241,7 +241,8 @@ class SceneView:
             with self.client.atomic():
                 if len(wps) >= 2:
                     handles.append(self.scene.add_spline_catmull_rom(
-                        f"/overlay/{name}/spline", wps[:, :3], thickness=0.003 if faint else 0.004, color=color))  # fmt: skip
+                        f"/overlay/{name}/spline", wps[:, :3], thickness=0.003 if faint else 0.004,
+                        color=color))  # fmt: skip
                 for i, row in enumerate(wps):
                     closed = row[3] > 0.5
                     big = current == i

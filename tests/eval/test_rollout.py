@@ -161,9 +161,8 @@ def test_a_guided_policys_rollouts_keep_the_null_plan_beside_each_plan(tmp_path)
     for i in range(n_plans):
         null, plan = guided[f"plan{i}_null_waypoints_world"], guided[f"plan{i}_waypoints_world"]
         assert null.shape == plan.shape == (5, 4) and np.isfinite(null).all()
-        assert (
-            np.abs(null[:, :3] - plan[:, :3]).max() > 1e-6
-        )  # guidance moved the plan away from the null one
+        # guidance moved the plan away from the null one
+        assert np.abs(null[:, :3] - plan[:, :3]).max() > 1e-6
 
 
 def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_path):
