@@ -71,6 +71,9 @@ class PlanRecord:
     latent_images: np.ndarray | None = None
     #: (5, 4) with demonstration guidance: the plan from the null demonstration (``PlanResult``).
     null_waypoints_world: np.ndarray | None = None
+    #: with guidance and a world model: the demonstration's gain, and whether this plan was guided (``PlanResult``).
+    guidance_gain: float | None = None
+    guided: bool = False
 
 
 @dataclass
@@ -175,6 +178,8 @@ def run_rollout(
                 latent_states=getattr(result, "latent_states", None),
                 pooled_states=getattr(result, "pooled_states", None),
                 null_waypoints_world=getattr(result, "null_waypoints_world", None),
+                guidance_gain=getattr(result, "guidance_gain", None),
+                guided=bool(getattr(result, "guided", False)),
             )
         )
         event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
@@ -242,6 +247,9 @@ def store_rollout(
                 arrays[f"plan{i}_latent_images"] = np.asarray(p.latent_images, dtype=np.uint8)
             if p.null_waypoints_world is not None:
                 arrays[f"plan{i}_null_waypoints_world"] = np.asarray(p.null_waypoints_world)
+                arrays[f"plan{i}_guided"] = np.array(p.guided)
+            if p.guidance_gain is not None:
+                arrays[f"plan{i}_guidance_gain"] = np.array(p.guidance_gain)
         arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
         arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
         np.savez_compressed(tmp / "plans.npz", allow_pickle=False, **arrays)

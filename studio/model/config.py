@@ -81,6 +81,10 @@ class ModelConfig:
             null + guidance · (demonstration − null), planned with the demonstration and with the null one.
             1 plans from the demonstration alone; other values need a model trained with
             ``TrainConfig.demo_dropout``. A planning setting: ``studio export-policy --guidance`` writes it.
+        guidance_gate: guide only demonstrations whose ``guidance.demonstration_gain`` (how much better the world
+            model predicts the demonstration's video with it than from its scene alone) reaches this; the others
+            are planned from the demonstration alone. 0 guides every demonstration. Needs the world model; a
+            planning setting (``studio export-policy --guidance-gate``).
     """
 
     image_size: tuple[int, int] = (240, 320)
@@ -116,6 +120,7 @@ class ModelConfig:
     demo_task_groups: tuple[int, ...] = ()
     demo_task_table: tuple[tuple[int, ...], ...] = ()
     guidance: float = 1.0
+    guidance_gate: float = 0.0
 
     def __post_init__(self) -> None:
         # JSON gives lists where the fields hold tuples; image_size's length is checked below
@@ -146,6 +151,10 @@ class ModelConfig:
             raise ValueError(f"depth_scale must be positive, got {self.depth_scale}")
         if not 0.0 <= self.guidance <= 10.0:
             raise ValueError(f"guidance must be in [0, 10], got {self.guidance}")
+        if self.guidance_gate < 0.0:
+            raise ValueError(f"guidance_gate must be >= 0, got {self.guidance_gate}")
+        if self.guidance_gate > 0.0 and not self.world_model:
+            raise ValueError("guidance_gate needs the world model: the gain is read from its predictions")
 
     @property
     def waypoint_rows(self) -> int:

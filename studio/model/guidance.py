@@ -11,6 +11,15 @@ one, and combines the raw waypoint rows (x, y, depth, gripper logit) as
 g = 1 is the demonstration alone (the paper; no second plan); g > 1 moves the plan further the way the
 demonstration moves it away from what the scene alone suggests.
 
+The gate (``ModelConfig.guidance_gate``): guidance helps where the demonstration shows a motion its scene does not
+suggest, and harms where the scene alone already explains it (the extrapolation then only adds error). The world
+model says which: ``demonstration_gain`` replays the demonstration's own first frame through π and 𝒲, once with
+the demonstration and once with the null one, and compares both predicted latent trajectories with the
+demonstration's real later frames. The gain is the null prediction's error over the demonstration's; about 1
+when the scene alone predicts what the demonstrator did, larger when it does not. A gated policy guides only
+demonstrations whose gain reaches the gate; the gain depends on the demonstration alone, so it is computed once
+per demonstration, not per plan.
+
 Why: where the training set shows a scene with one motion only (Meta-World closes the window and never opens
 it), the planner learns to answer the scene, and the demonstration's part in the plan stays small. Guidance
 amplifies that part at planning time without changing the scenes the model was trained on. A model trained
@@ -24,7 +33,13 @@ alone already points at the demonstrated motion, fall from 52 to 7 % without re-
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
+
+if TYPE_CHECKING:
+    from studio.model.osvi_wm import OSVIWM
+    from studio.model.transformer import KVCache
 
 
 def null_demonstration(like: torch.Tensor) -> torch.Tensor:
@@ -52,3 +67,26 @@ def drop_demonstrations(
 def guide(with_demo: torch.Tensor, without_demo: torch.Tensor, scale: float) -> torch.Tensor:
     """``without_demo + scale · (with_demo − without_demo)``: the raw rows planned with guidance ``scale``."""
     return without_demo + scale * (with_demo - without_demo)
+
+
+def demonstration_gain(
+    model: OSVIWM, expert_states: torch.Tensor, context: KVCache, null_context: KVCache
+) -> float:
+    """How much better the world model predicts the demonstration's own video with it than from its scene alone.
+
+    ``expert_states`` (N, *state_shape) are the encoded demonstration frames, ``context`` and ``null_context``
+    π's caches of the demonstration and of the null one. From the first frame, both recursions predict the later
+    states; each is compared (pooled keypoints, L2) with the demonstration's frames at the same fraction of the
+    video as the training targets' agent frames. Returns error(null) / error(demonstration).
+    """
+    if model.world_model is None:
+        raise ValueError("the demonstration gain needs the world model (ModelConfig.world_model)")
+    n, m = expert_states.shape[0], model.cfg.n_agent_frames
+    targets = [round(i / (m - 1) * (n - 1)) for i in model.target_frame_indices()]
+    actual = model.pool(expert_states[targets])
+    first = expert_states[:1]
+    errors = []
+    for ctx in (null_context, context):
+        _, states = model.rollout_from_context(ctx, first)
+        errors.append(float((model.pool(states)[0] - actual).norm(dim=-1).sum()))
+    return errors[0] / max(errors[1], 1e-12)

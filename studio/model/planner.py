@@ -18,6 +18,8 @@ A model whose configuration asks for demonstration guidance (``ModelConfig.guida
 also planned from the null demonstration, whose context is computed once, and its rows combined with the
 demonstration's; the latent trajectory returned is the demonstration's own, and the null plan comes back beside
 the guided one (what the scene alone suggests: how far the demonstration moved the plan is read from the two).
+With a world model, the demonstration's gain (``guidance.demonstration_gain``) is computed once per demonstration
+and returned; a gated policy (``ModelConfig.guidance_gate``) guides only demonstrations whose gain reaches the gate.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ import torch
 from torch.nn import functional as F
 
 from studio.model.geometry import camera_to_world, resize_intrinsics
-from studio.model.guidance import guide, null_demonstration
+from studio.model.guidance import demonstration_gain, guide, null_demonstration
 from studio.model.osvi_wm import OSVIWM, waypoint_set
 from studio.model.transformer import KVCache
 
@@ -52,6 +54,8 @@ class PlanResult:
         reused_expert_context: whether the expert context came from the previous call.
         null_waypoints_world: (5, 4) with demonstration guidance, the plan from the null demonstration alone
             (what the scene suggests; world frame, like ``waypoints_world``); None without guidance.
+        guidance_gain: with guidance and a world model, the demonstration's gain (``guidance``); else None.
+        guided: whether the returned plan is the guided one (False without guidance, or below the gate).
     """
 
     waypoints_world: np.ndarray
@@ -61,6 +65,8 @@ class PlanResult:
     timing: dict[str, float] = field(default_factory=dict)
     reused_expert_context: bool = False
     null_waypoints_world: np.ndarray | None = None
+    guidance_gain: float | None = None
+    guided: bool = False
 
     @property
     def gripper_closed(self) -> np.ndarray:
@@ -114,6 +120,7 @@ class Planner:
         self._context_key: str | None = None
         self._context: KVCache | None = None
         self._null_context: KVCache | None = None
+        self._gain: float | None = None
 
     @classmethod
     def load(
@@ -127,7 +134,7 @@ class Planner:
         return planner
 
     def clear_cache(self) -> None:
-        self._context_key, self._context = None, None
+        self._context_key, self._context, self._gain = None, None, None
 
     @torch.inference_mode()
     def name_demonstration(self, expert_frames: np.ndarray | torch.Tensor) -> tuple[str, ...] | None:
@@ -161,14 +168,18 @@ class Planner:
             expert = expert[np.round(np.linspace(0, expert.shape[0] - 1, n)).astype(int)]
         return _resize(expert, _hw(self.cfg.image_size)).to(self.device)
 
-    def _plan_without_demonstration(self, expert: torch.Tensor, agent_state: torch.Tensor) -> torch.Tensor:
-        """Raw rows planned from the null demonstration (its context made on the first call)."""
-        model = self.model
+    def _null_context_for(self, expert: torch.Tensor) -> KVCache:
+        """π's cache of the null demonstration (made on the first call; it is the same for every demonstration)."""
         if self._null_context is None:
             with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
-                encoded = model.encode(null_demonstration(expert)).float()
-            self._null_context = model.action_model.context(encoded.unsqueeze(0))
-        _, states = model.rollout_from_context(self._null_context, agent_state)
+                encoded = self.model.encode(null_demonstration(expert)).float()
+            self._null_context = self.model.action_model.context(encoded.unsqueeze(0))
+        return self._null_context
+
+    def _plan_without_demonstration(self, expert: torch.Tensor, agent_state: torch.Tensor) -> torch.Tensor:
+        """Raw rows planned from the null demonstration."""
+        model = self.model
+        _, states = model.rollout_from_context(self._null_context_for(expert), agent_state)
         return model.predict_waypoints(model.pool(states))
 
     @torch.inference_mode()
@@ -207,18 +218,22 @@ class Planner:
             context = cached
         else:
             context = model.action_model.context(encoded[:n].unsqueeze(0))
-            self._context_key, self._context = key, context
+            self._context_key, self._context, self._gain = key, context, None
+            if self.cfg.guidance != 1.0 and model.world_model is not None:
+                self._gain = demonstration_gain(model, encoded[:n], context, self._null_context_for(expert))
         t2 = time.perf_counter()
         _, states = model.rollout_from_context(context, agent_state)
         pooled = model.pool(states)
         t3 = time.perf_counter()
         raw = model.predict_waypoints(pooled)
         K_dev, T_dev = K_model[None].to(self.device), torch.as_tensor(T, device=self.device)[None]
-        null_world = None
+        null_world, guided = None, False
         if self.cfg.guidance != 1.0:
             null_raw = self._plan_without_demonstration(expert, agent_state)
             null_world = torch.cat(self._waypoints(null_raw, K_dev, T_dev)[1:], 1).cpu().numpy()
-            raw = guide(raw, null_raw, self.cfg.guidance)
+            guided = self._gain is None or self._gain >= self.cfg.guidance_gate
+            if guided:
+                raw = guide(raw, null_raw, self.cfg.guidance)
         p_cam, p_world, grip = self._waypoints(raw, K_dev, T_dev)
         t4 = time.perf_counter()
         ms = {
@@ -236,6 +251,8 @@ class Planner:
             timing=ms,
             reused_expert_context=reused,
             null_waypoints_world=null_world,
+            guidance_gain=self._gain if self.cfg.guidance != 1.0 else None,
+            guided=guided,
         )
 
     def _waypoints(

@@ -1,6 +1,7 @@
 """`studio export-policy`: turn a training checkpoint (and its latent decoder) into a small inference file.
 
     studio export-policy RUN_DIR/best.pt OUT.pt [--decoder DECODER_DIR/best.pt] [--fp32] [--guidance G]
+        [--guidance-gate GAIN]
 
 The policy file keeps everything planning needs — the checkpoint format, full configuration, dataset
 fingerprint, trained tasks, step — and drops the optimiser and scheduler state (two thirds of a training
@@ -31,9 +32,10 @@ def _weights(state: dict[str, torch.Tensor], half: bool) -> dict[str, torch.Tens
 
 
 def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Path | None = None,
-                  half: bool = True, guidance: float | None = None) -> dict[str, int]:  # fmt: skip
-    """Write the policy (and decoder) files; returns their sizes in bytes. ``guidance`` sets the policy's
-    demonstration guidance (``ModelConfig.guidance``; None keeps the checkpoint's)."""
+                  half: bool = True, guidance: float | None = None,
+                  guidance_gate: float | None = None) -> dict[str, int]:  # fmt: skip
+    """Write the policy (and decoder) files; returns their sizes in bytes. ``guidance`` and ``guidance_gate``
+    set the policy's demonstration guidance and its gate (``ModelConfig``; None keeps the checkpoint's)."""
     from studio.model.train import load_checkpoint
     from studio.model.train_decoder import DECODER_FORMAT
 
@@ -43,15 +45,22 @@ def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Pat
     policy = {k: v for k, v in ckpt.items() if k not in TRAINING_ONLY}
     policy["model"] = _weights(ckpt["model"], half)
     policy["exported_from"] = str(checkpoint)
-    if guidance is not None:
+    overrides = [
+        f"model.{k}={v}"
+        for k, v in (("guidance", guidance), ("guidance_gate", guidance_gate))
+        if v is not None
+    ]
+    if overrides:
         from studio.model.config import RunConfig
 
-        run = RunConfig.from_dict(ckpt["config"]).with_overrides([f"model.guidance={guidance}"])
-        if guidance != 1.0 and run.train.demo_dropout == 0.0:
+        run = RunConfig.from_dict(ckpt["config"]).with_overrides(overrides)
+        if run.model.guidance != 1.0 and run.train.demo_dropout == 0.0:
             raise ValueError(
                 f"{checkpoint} was trained without train.demo_dropout: it has never planned from the null "
                 "demonstration, so guidance would extrapolate from an untrained plan"
             )
+        if run.model.guidance_gate > 0.0 and run.model.guidance == 1.0:
+            raise ValueError("a guidance gate without guidance does nothing: give --guidance too")
         policy["config"] = run.to_dict()
     atomic_save(policy, out)
     sizes = {"policy_bytes": out.stat().st_size}
@@ -78,12 +87,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="plan with this demonstration guidance (ModelConfig.guidance; for models trained with "
         "train.demo_dropout; default: the checkpoint's)",
     )
+    parser.add_argument(
+        "--guidance-gate",
+        type=float,
+        help="guide only demonstrations whose gain (how much better the world model predicts the demonstration "
+        "with it than from its scene alone) reaches this (ModelConfig.guidance_gate; default: the checkpoint's)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         sizes = export_policy(
-            args.checkpoint, args.out, decoder=args.decoder, half=not args.fp32, guidance=args.guidance
+            args.checkpoint,
+            args.out,
+            decoder=args.decoder,
+            half=not args.fp32,
+            guidance=args.guidance,
+            guidance_gate=args.guidance_gate,
         )
     except (FileNotFoundError, ValueError) as e:
         print(f"studio export-policy: {e}", file=sys.stderr)

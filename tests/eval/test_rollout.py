@@ -163,6 +163,8 @@ def test_a_guided_policys_rollouts_keep_the_null_plan_beside_each_plan(tmp_path)
         assert null.shape == plan.shape == (5, 4) and np.isfinite(null).all()
         # guidance moved the plan away from the null one
         assert np.abs(null[:, :3] - plan[:, :3]).max() > 1e-6
+        # ungated, every plan is guided; the demonstration's gain is stored with each
+        assert bool(guided[f"plan{i}_guided"]) and float(guided[f"plan{i}_guidance_gain"]) > 0
 
 
 def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_path):

@@ -10,7 +10,7 @@ from synthetic_pairs import SyntheticPairs, tiny_run_config
 
 from studio.model.batching import collate_pairs
 from studio.model.config import ModelConfig, TrainConfig
-from studio.model.guidance import drop_demonstrations, guide
+from studio.model.guidance import demonstration_gain, drop_demonstrations, guide
 from studio.model.osvi_wm import OSVIWM
 from studio.model.planner import Planner
 from studio.model.policy_export import export_policy
@@ -120,4 +120,83 @@ def test_export_policy_writes_the_guidance_the_planner_then_uses_and_refuses_mod
     train(unguided, SyntheticPairs(), None, tmp_path / "plain", show_progress=False)
     with pytest.raises(ValueError, match="trained without train"):
         export_policy(tmp_path / "plain" / "last.pt", tmp_path / "bad.pt", guidance=3.0)
+    assert not (tmp_path / "bad.pt").exists()
+
+
+def test_the_gain_is_the_null_predictions_error_over_the_demonstrations_on_the_demonstrations_own_frames():
+    torch.manual_seed(0)
+    model = OSVIWM(tiny_run_config().model).eval()
+    expert = torch.as_tensor(np.asarray(SyntheticPairs()[0]["expert_frames"]))
+    with torch.no_grad():
+        states = model.encode(expert)
+        context = model.action_model.context(states[None])
+        null_context = model.action_model.context(model.encode(torch.zeros_like(expert))[None])
+        gain = demonstration_gain(model, states, context, null_context)
+        # N = 4 frames, M = 3: the two predicted states are compared with frames round(1/2·3) = 2 and 3
+        actual = model.pool(states[[2, 3]])
+        errors = [
+            float((model.pool(model.rollout_from_context(c, states[:1])[1])[0] - actual).norm(dim=-1).sum())
+            for c in (null_context, context)
+        ]
+    assert errors[0] != errors[1]
+    assert gain == pytest.approx(errors[0] / errors[1], rel=1e-6)
+    without_wm = OSVIWM(tiny_run_config().with_overrides(["model.world_model=false"]).model)
+    with pytest.raises(ValueError, match="needs the world model"):
+        demonstration_gain(without_wm, states, context, null_context)
+
+
+def _gated(gate: float, weights: dict) -> Planner:
+    run = tiny_run_config().with_overrides(["model.guidance=4.0", f"model.guidance_gate={gate}"])
+    model = OSVIWM(run.model)
+    model.load_state_dict(weights)
+    return Planner(model)
+
+
+def test_a_gated_policy_guides_only_demonstrations_whose_gain_reaches_the_gate(monkeypatch):
+    torch.manual_seed(0)
+    weights = OSVIWM(tiny_run_config().model).state_dict()
+    data = SyntheticPairs()
+    expert, agent, K = data[0]["expert_frames"], data[0]["agent_frames"][0], data[0]["K"]
+    plain = _planner(1.0, weights).plan(expert, agent, K, np.eye(4))
+    always = _planner(4.0, weights).plan(expert, agent, K, np.eye(4))
+    assert plain.guidance_gain is None and not plain.guided
+    gain = always.guidance_gain
+    assert gain is not None and gain > 0 and always.guided
+    below = _gated(gain * 1.01, weights).plan(expert, agent, K, np.eye(4))
+    reached = _gated(gain * 0.99, weights).plan(expert, agent, K, np.eye(4))
+    assert not below.guided and np.allclose(below.waypoints_world, plain.waypoints_world, atol=1e-6)
+    assert reached.guided and np.allclose(reached.waypoints_world, always.waypoints_world, atol=1e-6)
+    assert below.guidance_gain == pytest.approx(gain) and reached.guidance_gain == pytest.approx(gain)
+    assert np.allclose(below.null_waypoints_world, always.null_waypoints_world, atol=1e-6)
+
+    # the gain is the demonstration's: computed once for it, again for another demonstration
+    import studio.model.planner as planner_module
+
+    calls = []
+
+    def counting(*args):
+        calls.append(1)
+        return gain
+
+    monkeypatch.setattr(planner_module, "demonstration_gain", counting)
+    gated = _gated(gain, weights)
+    for frame in (agent, data[1]["agent_frames"][0], agent):
+        gated.plan(expert, frame, K, np.eye(4))
+    assert len(calls) == 1
+    gated.plan(data[4]["expert_frames"], agent, K, np.eye(4))
+    assert len(calls) == 2
+
+
+def test_the_gate_is_checked_and_export_policy_writes_it(tmp_path):
+    with pytest.raises(ValueError, match="guidance_gate must be"):
+        ModelConfig(image_size=(32, 32), guidance_gate=-0.5)
+    with pytest.raises(ValueError, match="needs the world model"):
+        ModelConfig(image_size=(32, 32), guidance_gate=1.1, world_model=False)
+    run = tiny_run_config(max_steps=1, batch_size=4, val_every=100).with_overrides(["train.demo_dropout=0.5"])
+    train(run, SyntheticPairs(), None, tmp_path / "run", show_progress=False)
+    export_policy(tmp_path / "run" / "last.pt", tmp_path / "gated.pt", guidance=5.0, guidance_gate=1.04)
+    cfg = Planner.load(tmp_path / "gated.pt").cfg
+    assert (cfg.guidance, cfg.guidance_gate) == (5.0, 1.04)
+    with pytest.raises(ValueError, match="gate without guidance does nothing"):
+        export_policy(tmp_path / "run" / "last.pt", tmp_path / "bad.pt", guidance_gate=1.04)
     assert not (tmp_path / "bad.pt").exists()

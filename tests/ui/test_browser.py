@@ -145,6 +145,7 @@ def data_dir(tmp_path_factory):
         out.plans[0].latent_images = rng.integers(0, 255, (5, 48, 64, 3), dtype=np.uint8)
         # ... and, as a guided policy's would, the plan from the null demonstration: here the unshifted one.
         out.plans[0].null_waypoints_world = out.plans[0].waypoints_world - np.array([0.12, 0.0, 0.0, 0.0])
+        out.plans[0].guidance_gain, out.plans[0].guided = 1.6, True
         with store.catalog.transaction():
             store.catalog.add_run(RunRecord(id="fixture-run", status="done"))
             store.catalog.add_checkpoint(CheckpointRecord(id="fixture-run/best", run_id="fixture-run", step=1,
@@ -498,7 +499,7 @@ def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     assert "plan" in tab.view._overlays
     assert ins.n_plans == 1  # the stored null plan is not counted as a plan of its own
     assert "null plan" in tab.view._overlays, "a guided rollout shows its plan from the scene alone"
-    assert "guidance moved the plan up to 0.12 m" in ins.plan_info.content
+    assert "guidance moved the plan up to 0.12 m from it (demonstration gain 1.600)" in ins.plan_info.content
 
 
 @pytest.mark.slow

@@ -266,9 +266,18 @@ class InspectorPanel:
             end = int(starts[k + 1]) if k + 1 < len(starts) else self.replay.num_steps - 1
             text += f" Plan {k + 1} of {len(starts)} (from step {int(starts[k])})."
             if null is not None and wps is not None:
-                moved = float(np.linalg.norm(np.asarray(wps)[:, :3] - np.asarray(null)[:, :3], axis=1).max())
-                text += (f" Grey: the plan from the scene alone (the null demonstration); guidance moved the plan "
-                         f"up to {moved:.2f} m from it.")  # fmt: skip
+                text += " Grey: the plan from the scene alone (the null demonstration);"
+                gain = self.plans.get(f"plan{k}_guidance_gain")
+                gain_text = f"demonstration gain {float(gain):.3f}" if gain is not None else ""
+                if bool(self.plans.get(f"plan{k}_guided", True)):
+                    moved = float(
+                        np.linalg.norm(np.asarray(wps)[:, :3] - np.asarray(null)[:, :3], axis=1).max()
+                    )
+                    text += f" guidance moved the plan up to {moved:.2f} m from it" + (
+                        f" ({gain_text})." if gain_text else "."
+                    )
+                else:
+                    text += f" not guided: {gain_text} below the policy's gate, the plan is the demonstration's alone."
             lat = self.latents.get(k)
             if lat is not None and len(lat):
                 frac = (step - int(starts[k])) / max(1, end - int(starts[k]))
