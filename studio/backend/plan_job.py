@@ -96,6 +96,14 @@ def run_plan_job(ctx) -> dict[str, Any]:
         "K": np.asarray(cam.K, dtype=np.float64),
         "T_world_cam": np.asarray(cam.T_world_cam, dtype=np.float64),
     }
+    null = getattr(plan, "null_waypoints_world", None)
+    guidance = None
+    if null is not None:  # a guided policy: its plan from the scene alone, and whether it guided this one
+        arrays["null_waypoints_world"] = np.asarray(null, dtype=np.float64)
+        cfg = planner.cfg
+        gain = getattr(plan, "guidance_gain", None)
+        guidance = {"scale": float(cfg.guidance), "gate": float(cfg.guidance_gate),
+                    "gain": None if gain is None else float(gain), "guided": bool(getattr(plan, "guided", True))}  # fmt: skip
     decoded = 0
     pooled = getattr(plan, "pooled_states", None)
     if checkpoint != "oracle" and pooled is not None:
@@ -114,4 +122,5 @@ def run_plan_job(ctx) -> dict[str, Any]:
         "latent_images": decoded,
         "decoder": None if checkpoint == "oracle" else (str(find_decoder(checkpoint) or "") or None),
         "gripper_closed": [bool(g > 0.5) for g in arrays["waypoints_world"][:, 3]],
+        "guidance": guidance,
     }

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from eval.tiny_checkpoint import write_tiny_checkpoint
 
 from studio.backend.jobs import JobClient
 from studio.backend.plan_job import expert_indices
@@ -22,6 +23,16 @@ def test_expert_indices_keep_first_and_last():
         expert_indices(0)
 
 
+def _succeeded(client: JobClient, kind: str, spec: dict) -> dict:
+    """Submit a job, wait for it to succeed, return its result."""
+    job = client.submit(kind, spec)
+    with client.watch(job.job) as w:
+        final = w.wait(timeout=120)
+        assert final.state == "succeeded", final.reason
+        w.wait(lambda w: w.result is not None, 10)
+    return w.result.result
+
+
 def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
     root = tmp_path / "data"
     workers.start("sim", "sim-p", "--data-dir", str(root), handlers=(), only_handlers=False)
@@ -29,29 +40,30 @@ def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
     status = hub.directory.get("sim", "sim-p").status
     assert {"plan", "expert"} <= set(status.job_kinds), status.unavailable
     client = JobClient(hub.session)
-    job = client.submit("expert", {"task": TASK, "seed": 0})
-    with client.watch(job.job) as w:
-        final = w.wait(timeout=120)
-        assert final.state == "succeeded", final.reason
-        w.wait(lambda w: w.result is not None, 10)
-    episode = w.result.result["episode_id"]
+    episode = _succeeded(client, "expert", {"task": TASK, "seed": 0})["episode_id"]
     with EpisodeStore(root) as store:
         meta = store.get(episode)
         assert meta.role == "expert" and meta.source == "scripted" and meta.task == TASK and meta.success
 
-    job = client.submit(
-        "plan", {"checkpoint": "oracle", "expert_episode_id": episode, "task": TASK, "seed": 3}
+    result = _succeeded(
+        client, "plan", {"checkpoint": "oracle", "expert_episode_id": episode, "task": TASK, "seed": 3}
     )
-    with client.watch(job.job) as w:
-        final = w.wait(timeout=120)
-        assert final.state == "succeeded", final.reason
-        w.wait(lambda w: w.result is not None, 10)
-    result = w.result.result
     plan = np.load(root / result["path"])
     assert plan["waypoints_world"].shape == (5, 4) and plan["agent_frame"].shape == (240, 320, 3)
     assert plan["expert_indices"][0] == 0 and plan["expert_indices"][-1] == meta.num_frames - 1
     assert "latent_images" not in plan and result["latent_images"] == 0
     assert result["gripper_closed"] == [bool(g > 0.5) for g in plan["waypoints_world"][:, 3]]
+    assert result["guidance"] is None and "null_waypoints_world" not in plan
+
+    # A guided policy's plan comes with its plan from the scene alone and says whether (and why) it was guided.
+    guided = write_tiny_checkpoint(tmp_path / "guided" / "best.pt", guidance=3.0)
+    guided_result = _succeeded(
+        client, "plan", {"checkpoint": str(guided), "expert_episode_id": episode, "task": TASK, "seed": 3}
+    )
+    guided_plan = np.load(root / guided_result["path"])
+    assert guided_plan["null_waypoints_world"].shape == guided_plan["waypoints_world"].shape == (5, 4)
+    info = guided_result["guidance"]
+    assert (info["scale"], info["gate"], info["guided"]) == (3.0, 0.0, True) and info["gain"] > 0
 
     bad = client.submit("plan", {"checkpoint": str(tmp_path / "missing.pt"), "expert_episode_id": episode,
                                  "task": TASK, "seed": 3})  # fmt: skip

@@ -864,6 +864,10 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     _wait(lambda: job.result is not None, 120, "the plan on the Meta-World scene")
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
+    # The shipped Meta-World policy plans with gated guidance: its plan from the scene alone is drawn in grey and
+    # the status says whether this demonstration was guided, with its gain against the gate.
+    assert "null plan" in tab.view._overlays
+    assert "demonstration gain" in im.status.content and "gate 1.04" in im.status.content, im.status.content
     _shot(page, shots / "imitate-plan-metaworld.png")
 
 

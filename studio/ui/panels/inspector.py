@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from studio.backend.messages import Role
+from studio.ui.guidance_note import guidance_note
 from studio.ui.images import side_by_side, thumbnail
 from studio.ui.scene_view import NULL_PLAN_RGB
 from studio.ui.timeline import Timeline
@@ -266,18 +267,11 @@ class InspectorPanel:
             end = int(starts[k + 1]) if k + 1 < len(starts) else self.replay.num_steps - 1
             text += f" Plan {k + 1} of {len(starts)} (from step {int(starts[k])})."
             if null is not None and wps is not None:
-                text += " Grey: the plan from the scene alone (the null demonstration);"
                 gain = self.plans.get(f"plan{k}_guidance_gain")
-                gain_text = f"demonstration gain {float(gain):.3f}" if gain is not None else ""
-                if bool(self.plans.get(f"plan{k}_guided", True)):
-                    moved = float(
-                        np.linalg.norm(np.asarray(wps)[:, :3] - np.asarray(null)[:, :3], axis=1).max()
-                    )
-                    text += f" guidance moved the plan up to {moved:.2f} m from it" + (
-                        f" ({gain_text})." if gain_text else "."
-                    )
-                else:
-                    text += f" not guided: {gain_text} below the policy's gate, the plan is the demonstration's alone."
+                moved = float(np.linalg.norm(np.asarray(wps)[:, :3] - np.asarray(null)[:, :3], axis=1).max())
+                guidance = {"guided": bool(self.plans.get(f"plan{k}_guided", True)),
+                            "gain": None if gain is None else float(gain)}  # fmt: skip
+                text += guidance_note(guidance, moved)
             lat = self.latents.get(k)
             if lat is not None and len(lat):
                 frac = (step - int(starts[k])) / max(1, end - int(starts[k]))
