@@ -26,9 +26,12 @@ amplifies that part at planning time without changing the scenes the model was t
 without ``demo_dropout`` has never seen the null demonstration, so guidance is meaningful only for models
 trained with it.
 
-Measured on Meta-World (docs/experiments.md): at g = 5 the hard tasks' first plans push the demonstration's way
-and the hard tasks without re-plans rise from 4 to 24.7 % (six seeds), while the easy tasks, where the scene
-alone already points at the demonstrated motion, fall from 52 to 7 % without re-plans. Off by default (g = 1).
+Measured on Meta-World (docs/experiments.md): at g = 5 on every demonstration the hard tasks' first plans push the
+demonstration's way and the hard tasks without re-plans rise from 4 to 24.7 % (six seeds), while the easy tasks,
+where the scene alone already points at the demonstrated motion, fall from 52 to 7 % without re-plans. The gain
+is about 1.0 on the easy tasks' demonstrations and 1.2-1.6 on door-unlock's; gated at 1.04, the shipped
+Meta-World policy keeps its easy tasks and guides door-unlock (66.4 % under the paper's protocol against 63.9 %
+unguided before its dropout stage). Off by default (g = 1, no gate).
 """
 
 from __future__ import annotations
