@@ -176,6 +176,17 @@ class Planner:
             self._null_context = self.model.action_model.context(encoded.unsqueeze(0))
         return self._null_context
 
+    @torch.inference_mode()
+    def demonstration_gain(self, expert_frames: np.ndarray | torch.Tensor) -> float:
+        """The demonstration's gain (``guidance.demonstration_gain``), as a plan with it would compute it; used to
+        set a policy's gate from the training demonstrations (``studio export-policy --gate-percentile``)."""
+        model = self.model
+        expert = self._expert_input(expert_frames)
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            encoded = model.encode(expert).float()
+        context = model.action_model.context(encoded.unsqueeze(0))
+        return demonstration_gain(model, encoded, context, self._null_context_for(expert))
+
     def _plan_without_demonstration(self, expert: torch.Tensor, agent_state: torch.Tensor) -> torch.Tensor:
         """Raw rows planned from the null demonstration."""
         model = self.model

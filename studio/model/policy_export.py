@@ -1,7 +1,7 @@
 """`studio export-policy`: turn a training checkpoint (and its latent decoder) into a small inference file.
 
     studio export-policy RUN_DIR/best.pt OUT.pt [--decoder DECODER_DIR/best.pt] [--fp32] [--guidance G]
-        [--guidance-gate GAIN]
+        [--guidance-gate GAIN | --gate-percentile P --data DATA_DIR]
 
 The policy file keeps everything planning needs — the checkpoint format, full configuration, dataset
 fingerprint, trained tasks, step — and drops the optimiser and scheduler state (two thirds of a training
@@ -10,6 +10,11 @@ float32 when loaded (``Planner.load`` copies them into float32 parameters), whic
 by well under a millimetre (``tests/model/test_policy_export.py`` measures it). The decoder, when given, is
 written next to it as ``OUT.decoder.pt``, where the studio looks for it (``studio.eval.latents.find_decoder``).
 This is how ``studio/policies/`` is produced.
+
+``--gate-percentile P`` sets the guidance gate from the training data instead of by hand: the P-th percentile of
+the demonstration gains of every stored expert demonstration of the checkpoint's training tasks, so that a
+held-out demonstration is guided only when its scene explains it less than P % of the training demonstrations
+are explained by theirs (``studio.model.guidance``).
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from studio.model.run_files import atomic_save
@@ -76,6 +82,31 @@ def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Pat
     return sizes
 
 
+def gate_from_training_demonstrations(
+    checkpoint: str | Path, data_dir: str | Path, percentile: float
+) -> tuple[float, int]:
+    """The ``percentile``-th percentile of the demonstration gains of the stored expert demonstrations of the
+    checkpoint's training tasks, and how many there were."""
+    from studio.data.store import EpisodeStore
+    from studio.model.planner import Planner
+
+    if not 0.0 < percentile <= 100.0:
+        raise ValueError(f"the gate percentile must be in (0, 100], got {percentile}")
+    planner = Planner.load(checkpoint)
+    if planner.model.world_model is None:
+        raise ValueError(
+            f"{checkpoint} has no world model: the demonstration gain is read from its predictions"
+        )
+    if not planner.tasks:
+        raise ValueError(f"{checkpoint} does not name its training tasks")
+    with EpisodeStore(data_dir) as store:
+        demos = [m.id for m in store.episodes(role="expert", tasks=sorted(set(planner.tasks)))]
+        if not demos:
+            raise ValueError(f"no expert demonstration of {checkpoint}'s training tasks in {data_dir}")
+        gains = [planner.demonstration_gain(store.load_frames(d)) for d in demos]
+    return float(np.percentile(gains, percentile)), len(gains)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", help="training checkpoint (RUN_DIR/best.pt or last.pt)")
     parser.add_argument("out", help="policy file to write, e.g. studio/policies/pick_place.pt")
@@ -93,10 +124,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="guide only demonstrations whose gain (how much better the world model predicts the demonstration "
         "with it than from its scene alone) reaches this (ModelConfig.guidance_gate; default: the checkpoint's)",
     )
+    parser.add_argument(
+        "--gate-percentile",
+        type=float,
+        help="set the gate to this percentile of the gains of the training tasks' stored demonstrations "
+        "(needs --data; instead of --guidance-gate)",
+    )
+    parser.add_argument("--data", help="dataset root whose demonstrations --gate-percentile reads")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
+        if args.gate_percentile is not None:
+            if args.guidance_gate is not None or not args.data:
+                raise ValueError("--gate-percentile needs --data and replaces --guidance-gate")
+            args.guidance_gate, n = gate_from_training_demonstrations(
+                args.checkpoint, args.data, args.gate_percentile
+            )
+            print(f"guidance gate {args.guidance_gate:.4f}: the {args.gate_percentile:g}th percentile of {n} "
+                  "training demonstrations' gains")  # fmt: skip
         sizes = export_policy(
             args.checkpoint,
             args.out,

@@ -60,3 +60,38 @@ def test_export_command_reports_bad_input(trained, tmp_path, capsys):
     assert "not a latent-decoder checkpoint" in capsys.readouterr().err
     assert main(["export-policy", str(trained / "last.pt"), str(tmp_path / "q.pt")]) == 0
     assert "policy_bytes=" in capsys.readouterr().out
+
+
+def test_the_gate_percentile_is_read_off_the_training_tasks_stored_demonstrations(tmp_path):
+    from studio.data.collect import CollectConfig, collect
+    from studio.data.store import EpisodeStore
+    from studio.model.policy_export import gate_from_training_demonstrations
+
+    run = tiny_run_config(max_steps=1, batch_size=4, val_every=100).with_overrides(["train.demo_dropout=0.5"])
+    train(run, SyntheticPairs(), None, tmp_path / "run", show_progress=False)
+    ckpt = load_checkpoint(tmp_path / "run" / "last.pt")
+    ckpt["tasks"] = [
+        "pick_place/bar->blue"
+    ]  # as if trained on it, so its demonstrations are the training ones
+    named = tmp_path / "named.pt"
+    torch.save(ckpt, named)
+    data = tmp_path / "data"
+    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue", "pick_place/bar->red"],
+                          episodes=2, data_dir=str(data), progress=False, image_size=(48, 64)))  # fmt: skip
+    planner = Planner.load(named)
+    with EpisodeStore(data) as store:
+        training = store.episodes(role="expert", task="pick_place/bar->blue")
+        gains = [planner.demonstration_gain(store.load_frames(m.id)) for m in training]
+    assert len(gains) == 2 and gains[0] != gains[1]
+    gate, n = gate_from_training_demonstrations(named, data, 50)
+    assert n == 2 and gate == pytest.approx(float(np.mean(gains)))  # bar->red's demonstrations are not read
+    args = [str(named), str(tmp_path / "gated.pt"), "--guidance", "5", "--gate-percentile", "100"]
+    assert main(["export-policy", *args, "--data", str(data)]) == 0
+    assert Planner.load(tmp_path / "gated.pt").cfg.guidance_gate == pytest.approx(max(gains))
+    assert main(["export-policy", *args]) == 2  # no --data
+    with pytest.raises(ValueError, match="percentile must be"):
+        gate_from_training_demonstrations(named, data, 0)
+    ckpt["tasks"] = ["pick_place/bar->yellow"]
+    torch.save(ckpt, named)
+    with pytest.raises(ValueError, match="no expert demonstration"):
+        gate_from_training_demonstrations(named, data, 95)
