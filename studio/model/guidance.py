@@ -31,7 +31,8 @@ demonstration's way and the hard tasks without re-plans rise from 4 to 24.7 % (s
 where the scene alone already points at the demonstrated motion, fall from 52 to 7 % without re-plans. The gain
 is about 1.0 on the easy tasks' demonstrations and 1.2-1.6 on door-unlock's; gated at 1.04, the shipped
 Meta-World policy keeps its easy tasks and guides door-unlock (66.4 % under the paper's protocol against 63.9 %
-unguided before its dropout stage). Off by default (g = 1, no gate).
+unguided before its dropout stage). The gain's scale is the run's: ``studio export-policy --gate-percentile``
+sets the gate from the run's own training demonstrations. Off by default (g = 1, no gate).
 """
 
 from __future__ import annotations
