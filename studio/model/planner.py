@@ -262,7 +262,7 @@ class Planner:
             timing=ms,
             reused_expert_context=reused,
             null_waypoints_world=null_world,
-            guidance_gain=self._gain if self.cfg.guidance != 1.0 else None,
+            guidance_gain=self._gain,  # computed only with guidance
             guided=guided,
         )
 

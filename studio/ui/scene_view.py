@@ -258,6 +258,13 @@ class SceneView:
                         ))  # fmt: skip
             self._overlays[name] = handles
 
+    def show_null_plan(self, waypoints: np.ndarray | None) -> None:
+        """A guided policy's plan from the scene alone, faint and grey beside the plan; None clears it."""
+        if waypoints is None:
+            self.clear_overlay("null plan")
+        else:
+            self.show_waypoints("null plan", waypoints, color=NULL_PLAN_RGB, faint=True)
+
     def clear_overlays(self) -> None:
         """Remove every overlay (a new view starts clean)."""
         with self._lock:

@@ -27,7 +27,6 @@ from studio.sim.tasks import list_tasks
 from studio.ui.guidance_note import guidance_note
 from studio.ui.images import filmstrip, thumbnail
 from studio.ui.runs import SCENES, Checkpoint, SceneMismatch
-from studio.ui.scene_view import NULL_PLAN_RGB
 
 HINT = """Choose a **task** (held-out ones were never trained on), a **demonstration** of it and a scene
 **seed**. **Plan** shows what the model sees and predicts; **Execute** runs it on the Franka Panda
@@ -198,7 +197,7 @@ class ImitatePanel:
         ck = self.policy_for(task, self.demonstrator())
         self._show_scene(task, seed, f"Plan for **{task}**, seed {seed}.")
         self.tab.view.clear_overlay("plan")
-        self.tab.view.clear_overlay("null plan")
+        self.tab.view.show_null_plan(None)
         self.latent_strip.visible = False  # the previous plan's images must not pass for this one's
         self.plan_job = self.app.jobs.submit(
             "plan", {"checkpoint": ck.path, "expert_episode_id": demo, "task": task, "seed": seed,
@@ -213,12 +212,7 @@ class ImitatePanel:
         data = np.load(self.app.data_dir / result["path"])
         self.plan_wps = data["waypoints_world"]
         self.tab.view.show_waypoints("plan", self.plan_wps)
-        if "null_waypoints_world" in data:
-            self.tab.view.show_waypoints(
-                "null plan", data["null_waypoints_world"], color=NULL_PLAN_RGB, faint=True
-            )
-        else:
-            self.tab.view.clear_overlay("null plan")
+        self.tab.view.show_null_plan(data["null_waypoints_world"] if "null_waypoints_world" in data else None)
         frames = self.app.store.load_frames(tracked.spec["expert_episode_id"])
         idx = data["expert_indices"] if "expert_indices" in data else expert_indices(len(frames), 10)
         self.expert_strip.image = filmstrip(

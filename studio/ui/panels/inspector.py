@@ -19,7 +19,6 @@ import numpy as np
 from studio.backend.messages import Role
 from studio.ui.guidance_note import guidance_note
 from studio.ui.images import side_by_side, thumbnail
-from studio.ui.scene_view import NULL_PLAN_RGB
 from studio.ui.timeline import Timeline
 
 HINT = """Every rollout (from *Imitate* or `studio eval`) is stored. Filter them, **Open** one and drag the
@@ -259,10 +258,7 @@ class InspectorPanel:
             if self.tab.token == self._token:
                 if wps is not None:
                     self.tab.view.show_waypoints("plan", wps)
-                if null is not None:
-                    self.tab.view.show_waypoints("null plan", null, color=NULL_PLAN_RGB, faint=True)
-                else:
-                    self.tab.view.clear_overlay("null plan")
+                self.tab.view.show_null_plan(null)
             starts = np.asarray(self.plans["plan_start_ticks"])
             end = int(starts[k + 1]) if k + 1 < len(starts) else self.replay.num_steps - 1
             text += f" Plan {k + 1} of {len(starts)} (from step {int(starts[k])})."
