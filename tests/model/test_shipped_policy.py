@@ -29,7 +29,7 @@ DEMONSTRATORS = {
 
 
 #: Of the ten button-press rollouts (seeds 300-309) of the Meta-World policy (eight succeed); its JSON file gives
-#: the rate measured over hundreds of rollouts (80 % without re-plans), of which six in ten is far below.
+#: the rate measured over hundreds of rollouts (77 % without re-plans), of which six in ten is far below.
 MIN_BUTTON_PRESSES = 6
 
 
