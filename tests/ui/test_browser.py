@@ -27,7 +27,7 @@ import pytest
 
 from studio.backend import bus
 from studio.bench.ui import CHROMIUM, CHROMIUM_ARGS, WEBGL_ARGS
-from studio.model.train import load_checkpoint
+from studio.model.checkpoint_info import read_checkpoint_info
 
 THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window);
   window.requestAnimationFrame = (cb) => setTimeout(() => raf(cb), 200); })();"""
@@ -826,9 +826,8 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     tab = _tab(studio)
     tp, im = tab.teleop, tab.imitate
     _open_tab(page, "Teleop", "Drag the gizmo")
-    _click(page.get_by_role("combobox", name="Scene"))
-    _click(page.get_by_role("option", name="metaworld", exact=True))
-    _wait(lambda: tp.info is not None and tp.info.scene == "metaworld", 120, "the Meta-World session to open")
+    _choose(page, "Scene", "metaworld", lambda: tp.info is not None and tp.info.scene == "metaworld",
+            "the Meta-World session to open", timeout=120)  # fmt: skip
     _wait(
         lambda: "ready" in tp.status.content and tp.info.task in tp.status.content, 60, "the session's status"
     )
@@ -884,7 +883,7 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     # The shipped Meta-World policy plans with gated guidance: its plan from the scene alone is drawn in grey and
     # the status says whether this demonstration was guided, with its gain against the gate.
     assert "null plan" in tab.view._overlays
-    gate = load_checkpoint(mw.path)["config"]["model"]["guidance_gate"]
+    gate = read_checkpoint_info(mw.path)["config"]["model"]["guidance_gate"]
     assert gate > 0 and "demonstration gain" in im.status.content, im.status.content
     assert f"gate {gate:g}" in im.status.content, (gate, im.status.content)
     _shot(page, shots / "imitate-plan-metaworld.png")
