@@ -19,18 +19,18 @@ import re
 import subprocess
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from studio.backend import bus
-from studio.bench.ui import CHROMIUM, CHROMIUM_ARGS, WEBGL_ARGS
 from studio.model.checkpoint_info import read_checkpoint_info
 
-THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window);
-  window.requestAnimationFrame = (cb) => setTimeout(() => raf(cb), 200); })();"""
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import browser_support as ui
+from browser_support import THROTTLE_RAF, open_page, running_studio
+
 HELD_OUT = "pick_place/bar->blue"
 PUSH_HELD_OUT = "push/blue-backward"
 TRAIN_TASKS = ("pick_place/cube->red", "pick_place/cube->green")
@@ -44,18 +44,6 @@ TINY = [
 
 # Tests that share the app are slow one by one (marked); the fast ones stay in `-m "not slow"` runs.
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(420)]
-
-
-def _launch(p):
-    if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: ./run test installs Debian's chromium")
-    return p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS + WEBGL_ARGS["llvmpipe"])
-
-
-def _colours(path: Path, box=(0, 0, 700, 700)) -> int:
-    from PIL import Image
-
-    return len(Image.open(path).convert("RGB").crop(box).getcolors(maxcolors=1 << 20) or [])
 
 
 # ---------------------------------------------------------------------------------------------- studio serve
@@ -81,13 +69,13 @@ def test_serve_prints_its_url_and_waits_for_external_workers(tmp_path):
         assert url and url.startswith("http://127.0.0.1:"), f"no URL printed (last line: {line!r})"
         assert "no workers" in line and f"127.0.0.1:{bus_port}" in line
         with sync_playwright() as p:
-            browser = _launch(p)
+            browser = ui.launch(p)
             page = browser.new_page(viewport={"width": 1100, "height": 720})
             page.add_init_script(THROTTLE_RAF)
             page.goto(url)
             page.get_by_text("Waiting for a sim worker").first.wait_for(timeout=60_000)
             assert page.locator("canvas").first.is_visible()
-            _open_tab(page, "Workers", "No worker is connected")
+            ui.open_tab(page, "Workers", "No worker is connected")
             browser.close()
     finally:
         proc.terminate()
@@ -158,171 +146,27 @@ def data_dir(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def studio(data_dir):
-    from studio.ui.app import StudioApp
-
-    app = StudioApp(port=bus.free_loopback_port(), data_dir=data_dir,
-                    bus_config=bus.BusConfig.hub([bus.loopback_endpoint(bus.free_loopback_port())]))  # fmt: skip
-    try:
-        assert app.wait_for_workers(90), "the embedded workers did not join"
+    with running_studio(data_dir) as app:
         yield app
-    finally:
-        app.stop()
 
 
 @pytest.fixture(scope="module")
 def page(studio):
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        browser = _launch(p)
-        pg = browser.new_page(viewport={"width": 1100, "height": 720})
-        pg.add_init_script(THROTTLE_RAF)
-        pg.goto(studio.url)
-        pg.get_by_text("ready. Drag the gizmo").first.wait_for(timeout=90_000)
+    with open_page(studio) as pg:
         yield pg
-        browser.close()
-
-
-def _shot(page, path: Path, scroll_to: str | None = None) -> None:
-    """A screenshot for people to look at; a machine too loaded to render one in time only warns."""
-    from playwright.sync_api import TimeoutError as PlaywrightTimeout
-
-    if scroll_to is not None:
-        try:
-            page.get_by_text(scroll_to).first.scroll_into_view_if_needed(timeout=45_000)
-        except PlaywrightTimeout:
-            warnings.warn(f"could not scroll to {scroll_to!r} for {path.name}", stacklevel=2)
-    for attempt in range(2):
-        try:
-            page.screenshot(path=str(path), timeout=45_000)
-            return
-        except PlaywrightTimeout:
-            if attempt:
-                warnings.warn(f"no screenshot {path.name}: the page did not render in time", stacklevel=2)
-
-
-def _click(locator) -> None:
-    """Click without Playwright's stability wait: that waits on animation frames, which software WebGL on a
-    loaded machine delivers slowly; the elements clicked here are plain buttons and tabs."""
-    locator.click(force=True, timeout=60_000)
-
-
-def _click_until(page, locator, shows: str, attempts: int = 3) -> None:
-    """Click until the page shows ``shows``: a click that lands while a loaded machine is still building the page
-    can be lost (seen in full-suite runs, on tabs and on the Inspect tab's Open), and waiting longer on a click
-    that never arrived does not help. Fails if the text never appears."""
-    _click_until_done(locator, lambda: page.get_by_text(shows).first.wait_for(timeout=30_000), attempts)
-
-
-def _click_until_done(locator, wait_done, attempts: int = 3) -> None:
-    """Click, then ``wait_done()`` (raises on timeout); click again while it times out, at most ``attempts`` times."""
-    from playwright.sync_api import TimeoutError as PlaywrightTimeout
-
-    for attempt in range(attempts):
-        _click(locator)
-        try:
-            wait_done()
-            return
-        except (PlaywrightTimeout, AssertionError):
-            if attempt == attempts - 1:
-                raise
-
-
-def _choose(
-    page, combobox: str, option, taken, what: str, state=None, timeout: float = 20, attempts: int = 3
-):
-    """Pick ``option`` (a name or pattern) in the dropdown ``combobox`` and wait until ``taken()``: open the list
-    (until the option shows), click it, and reopen and click again while the app has not taken it. A click on an
-    option of a list that is still opening can close the list without choosing (seen on a loaded machine: the app
-    never heard of the choice); an app that refuses the choice fails the last attempt with ``state()``."""
-    exact = isinstance(option, str)
-    locator = (
-        page.get_by_role("option", name=option, exact=True)
-        if exact
-        else page.get_by_role("option", name=option)
-    )
-    for attempt in range(attempts):
-        _click_until_done(
-            page.get_by_role("combobox", name=combobox), lambda: locator.wait_for(timeout=10_000)
-        )
-        _click(locator)
-        try:
-            return _wait(taken, timeout, what, state)
-        except AssertionError:
-            if attempt == attempts - 1:
-                raise
-
-
-def _open_tab(page, name: str, shows: str, attempts: int = 3) -> None:
-    """Open a tab, re-clicking while its content does not show (``_click_until``)."""
-    _click_until(page, page.get_by_role("tab", name=name), shows, attempts)
-
-
-def _tab(studio):
-    (tab,) = studio.tabs.values()
-    return tab
-
-
-def _wait(predicate, timeout: float, what: str, state=None):
-    """Poll ``predicate`` until it is truthy; on timeout, fail with ``state()`` (what the app showed) if given."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.1)
-    raise AssertionError(
-        f"timed out after {timeout} s waiting for {what}" + (f"; {state()}" if state else "")
-    )
-
-
-def _teleop_state(tab) -> str:
-    """What the teleop panel shows and what its tab is busy with, for failure messages."""
-    return (
-        f"status {tab.teleop.status.content!r}, tab actions {tab.actions}, recording {tab.teleop._recording}"
-    )
-
-
-def _stop_and_save(page, tab) -> None:
-    """Click Stop & save until the panel took it (no longer recording, or saving), then wait for the store.
-    Re-clicking is safe: a Stop & save after the first one is a no-op."""
-    tp = tab.teleop
-    _click_until_done(page.get_by_role("button", name="Stop & save"),
-                      lambda: _wait(lambda: not tp.status.content.startswith("Recording"), 30,
-                                    "Stop & save to be taken", lambda: _teleop_state(tab)))  # fmt: skip
-    _wait(
-        lambda: tp.status.content.startswith("Saved"),
-        120,
-        "the episode to be stored",
-        lambda: _teleop_state(tab),
-    )
-
-
-def _screen_point(page, client, point: np.ndarray) -> tuple[float, float]:
-    """Where a world point appears on the page (viser cameras follow OpenCV: +z forward, +y down)."""
-    import viser.transforms as vtf
-
-    x0, y0, w, h = page.evaluate(
-        "() => { const r = document.querySelector('canvas').getBoundingClientRect(); return [r.x, r.y, r.width, r.height]; }"
-    )
-    cam = client.camera
-    R = vtf.SO3(np.asarray(cam.wxyz)).as_matrix()
-    p = R.T @ (np.asarray(point) - np.asarray(cam.position))
-    f = (h / 2) / np.tan(cam.fov / 2)
-    return x0 + w / 2 + f * p[0] / p[2], y0 + h / 2 + f * p[1] / p[2]
 
 
 # ---------------------------------------------------------------------------------------------- panels
 @pytest.mark.slow
 def test_teleop_records_and_saves_an_episode(studio, page, shots):
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     tp = tab.teleop
     assert tp.info.scene == "pick_place" and tp.info.robot == "sawyer"
     # A real mouse drag on the gizmo's x arrow moves the target along x.
     time.sleep(1.0)
     center = np.asarray(tp.gizmo.position)
-    grab = _screen_point(page, tab.client, center + np.array([0.09, 0.0, 0.0]))
-    ahead = _screen_point(page, tab.client, center + np.array([0.14, 0.0, 0.0]))
+    grab = ui.screen_point(page, tab.client, center + np.array([0.09, 0.0, 0.0]))
+    ahead = ui.screen_point(page, tab.client, center + np.array([0.14, 0.0, 0.0]))
     drags_before = tp.drags
     ee_before = np.asarray(tp.client.latest_pose().ee_pos)
     page.mouse.move(*grab)
@@ -330,34 +174,34 @@ def test_teleop_records_and_saves_an_episode(studio, page, shots):
     for k in range(1, 11):
         page.mouse.move(grab[0] + (ahead[0] - grab[0]) * k / 10, grab[1] + (ahead[1] - grab[1]) * k / 10)
     page.mouse.up()
-    _wait(lambda: tp.drags > drags_before, 20, "the browser's drag to reach the server")
+    ui.wait(lambda: tp.drags > drags_before, 20, "the browser's drag to reach the server")
     assert np.asarray(tp.gizmo.position)[0] > center[0] + 0.01, (
         "dragging the x arrow moves the gizmo along +x"
     )
-    _wait(lambda: tp.client.latest_pose().ee_pos[0] > ee_before[0] + 0.01, 15, "the arm to follow the drag")
+    ui.wait(lambda: tp.client.latest_pose().ee_pos[0] > ee_before[0] + 0.01, 15, "the arm to follow the drag")
     before = {m.id for m in studio.store.episodes()}
-    _click(page.get_by_role("button", name="Record"))
-    _wait(lambda: tp._recording, 30, "recording to start")
+    ui.click(page.get_by_role("button", name="Record"))
+    ui.wait(lambda: tp._recording, 30, "recording to start")
     page.get_by_text("● REC").first.wait_for(timeout=60_000)
-    start = np.asarray(_wait(tp.client.latest_pose, 5, "a pose").ee_pos)
+    start = np.asarray(ui.wait(tp.client.latest_pose, 5, "a pose").ee_pos)
     # The gizmo's drag callback, as the browser reaches it: targets along a path, latest wins.
     goal = start + np.array([0.06, 0.04, -0.08])
     for i in range(1, 61):
         tp.move_to(start + (goal - start) * i / 60)
         time.sleep(1 / 60)
-    _wait(
+    ui.wait(
         lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.01,
         15,
         "the arm to follow",
     )
     assert tab.pose_pushes > 30 and studio.stats.ack_ms, "poses must reach the page and drags be acknowledged"
-    _click(page.get_by_role("checkbox").first)  # the user's verdict overrides the task's check
-    _wait(lambda: tp.success.value and tp._success_touched, 10, "the success box to be ticked")
-    _shot(page, shots / "teleop-recording.png")
-    assert _colours(shots / "teleop-recording.png") > 300, "the 3D view looks blank"
-    _stop_and_save(page, tab)
+    ui.click(page.get_by_role("checkbox").first)  # the user's verdict overrides the task's check
+    ui.wait(lambda: tp.success.value and tp._success_touched, 10, "the success box to be ticked")
+    ui.shot(page, shots / "teleop-recording.png")
+    assert ui.colours(shots / "teleop-recording.png") > 300, "the 3D view looks blank"
+    ui.stop_and_save(page, tab)
     page.get_by_text("Saved").first.wait_for(timeout=60_000)
-    _shot(page, shots / "teleop-saved.png")
+    ui.shot(page, shots / "teleop-saved.png")
     (new,) = [m for m in studio.store.episodes() if m.id not in before]
     assert new.source == "teleop" and new.role == "expert" and new.embodiment == "sawyer"
     assert new.success is True and new.num_steps >= 60 and new.task == "pick_place/cube->red"
@@ -369,8 +213,8 @@ def test_teleop_records_and_saves_an_episode(studio, page, shots):
 def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, page, shots, tmp_path):
     from studio.data.video import write_video
 
-    tab = _tab(studio)
-    _click(page.get_by_role("tab", name="Upload"))
+    tab = ui.tab(studio)
+    ui.click(page.get_by_role("tab", name="Upload"))
     tab.upload.task.value = HELD_OUT
     frames = np.full((30, 120, 160, 3), 235, np.uint8)
     for i in range(30):
@@ -379,8 +223,8 @@ def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, pa
     write_video(video, frames, fps=15)
     page.locator("input[type=file]").first.set_input_files(str(video))
     page.get_by_text("The 10 frames the model will see").first.wait_for(timeout=60_000)
-    _shot(page, shots / "upload-filmstrip.png")
-    _click(page.get_by_role("button", name="Save as expert demonstration"))
+    ui.shot(page, shots / "upload-filmstrip.png")
+    ui.click(page.get_by_role("button", name="Save as expert demonstration"))
     page.get_by_text("as an expert demonstration of").first.wait_for(timeout=60_000)
     (up,) = studio.store.episodes(source="upload")
     assert up.task == HELD_OUT and up.embodiment == "human" and up.role == "expert"
@@ -389,10 +233,10 @@ def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, pa
     corrupt.write_bytes(b"\x00\x00\x00\x18ftypmp42" + os.urandom(4000))
     page.locator("input[type=file]").first.set_input_files(str(corrupt))
     page.get_by_text("Video rejected").first.wait_for(timeout=60_000)
-    _shot(page, shots / "upload-rejected.png")
+    ui.shot(page, shots / "upload-rejected.png")
     assert len(studio.store.episodes(source="upload")) == 1, "a rejected file must write nothing"
 
-    _click(page.get_by_role("tab", name="Data"))
+    ui.click(page.get_by_role("tab", name="Data"))
     page.get_by_text("1 upload").first.wait_for(timeout=60_000)
     tab.datasets.open(up.id)
     page.get_by_text(up.id).first.wait_for(timeout=60_000)
@@ -404,30 +248,30 @@ def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, pa
     tab.datasets.timeline.slider.value = rec.num_frames // 2
     page.get_by_text(rec.id).first.wait_for(timeout=60_000)
     assert tab.mode == "replay" and "path" in tab.view._overlays
-    _shot(page, shots / "data.png")
+    ui.shot(page, shots / "data.png")
 
 
 @pytest.mark.slow
 def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     train = tab.train
-    _click(page.get_by_role("tab", name="Train"))
+    ui.click(page.get_by_role("tab", name="Train"))
     for task, box in train._task_boxes.items():
         box.value = task in TRAIN_TASKS
     train.overrides.value = "; ".join(TINY)
     train.steps.value = 4
-    _click(page.get_by_role("button", name="Start training"))
+    ui.click(page.get_by_role("button", name="Start training"))
     page.get_by_text("step 4/4").first.wait_for(timeout=240_000)
     page.get_by_text("ended: finished").first.wait_for(timeout=60_000)
     time.sleep(3.5)  # the runs table refreshes every few seconds
-    _shot(page, shots / "train.png")
-    _shot(page, shots / "train-curves.png", scroll_to="Learning rate")
+    ui.shot(page, shots / "train.png")
+    ui.shot(page, shots / "train-curves.png", scroll_to="Learning rate")
     job = train.job_id
     run = studio.data_dir / "runs" / job
     assert (run / "last.pt").is_file() and json.loads((run / "spec.json").read_text())["steps"] == 4
     assert sorted(json.loads((run / "split.json").read_text())["train"]) == sorted(TRAIN_TASKS)
     assert any(c.run_id == job for c in studio.runs.checkpoints())
-    _wait(
+    ui.wait(
         lambda: [r for r in studio.store.catalog.runs() if r.id == job and r.status == "done"],
         10,
         "the run row",
@@ -437,36 +281,36 @@ def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
 
 @pytest.mark.slow
 def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     im = tab.imitate
     studio.runs.set_active("oracle", "pick_place")  # the execution ceiling, clearly labelled as such
-    _click(page.get_by_role("tab", name="Imitate"))
+    ui.click(page.get_by_role("tab", name="Imitate"))
     label = HELD_OUT + " (held-out)"
     assert label in im.task.options
     im.task.value = label
     page.get_by_text("oracle — execution ceiling").first.wait_for(timeout=60_000)
-    _click(page.get_by_role("button", name="Make a scripted demonstration"))
+    ui.click(page.get_by_role("button", name="Make a scripted demonstration"))
     page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
     assert "scripted" in im.demo.value
     im.seed.value = 2
-    _click(page.get_by_role("button", name="Plan", exact=True))
+    ui.click(page.get_by_role("button", name="Plan", exact=True))
     page.get_by_text("Planned in").first.wait_for(timeout=90_000)
     assert im.plan_wps.shape == (5, 4)
     overlay = tab.view._overlays["plan"]
     assert len(overlay) == 11, "a spline, 5 waypoint spheres and their labels"
-    _shot(page, shots / "imitate-plan.png")
+    ui.shot(page, shots / "imitate-plan.png")
     im.speed.value = "0.5×"  # slow motion, so that the screenshot catches it mid-way
-    _click(page.get_by_role("button", name="Execute", exact=True))
-    _wait(lambda: im.rollout is not None and im.rollout.poses_seen > 10, 90, "live rollout poses")
-    _wait(
+    ui.click(page.get_by_role("button", name="Execute", exact=True))
+    ui.wait(lambda: im.rollout is not None and im.rollout.poses_seen > 10, 90, "live rollout poses")
+    ui.wait(
         lambda: im.rollout.progress is not None and "waypoint" in im.rollout.progress.message,
         60,
         "a waypoint",
     )
-    _shot(page, shots / "imitate-executing.png")
+    ui.shot(page, shots / "imitate-executing.png")
     page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=120_000)
-    _shot(page, shots / "imitate-outcome.png")
-    result = _wait(lambda: im.rollout.result, 30, "the rollout's result")
+    ui.shot(page, shots / "imitate-outcome.png")
+    result = ui.wait(lambda: im.rollout.result, 30, "the rollout's result")
     assert result["success"] is True, result  # the oracle's plan on a held-out task succeeds
     assert im.rollout.plans and np.allclose(im.rollout.plans[0], im.plan_wps), (
         "execution follows the shown plan"
@@ -478,7 +322,7 @@ def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
 @pytest.mark.slow
 def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots):
     """The run trained from the UI, with a latent decoder, as the active policy: Plan shows decoded latents."""
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     im = tab.imitate
     run = studio.data_dir / "runs" / tab.train.job_id
     # The latent decoder, trained as a user would (its own process: this one never imports torch).
@@ -490,22 +334,22 @@ def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots
     )
     assert done.returncode == 0, done.stderr[-2000:]
     studio.runs.set_active(f"{run.name}/last")
-    _click(page.get_by_role("tab", name="Imitate"))
-    _wait(lambda: f"{run.name}/last" in im.policy.content, 20, "the trained policy to be active")
-    _click(page.get_by_role("button", name="Plan", exact=True))
-    _wait(lambda: im.latent_strip.visible, 120, "the decoded latent trajectory")
-    _shot(page, shots / "imitate-plan-trained.png", scroll_to="Predicted latent trajectory")
+    ui.click(page.get_by_role("tab", name="Imitate"))
+    ui.wait(lambda: f"{run.name}/last" in im.policy.content, 20, "the trained policy to be active")
+    ui.click(page.get_by_role("button", name="Plan", exact=True))
+    ui.wait(lambda: im.latent_strip.visible, 120, "the decoded latent trajectory")
+    ui.shot(page, shots / "imitate-plan-trained.png", scroll_to="Predicted latent trajectory")
     assert im.plan_job.result["latent_images"] > 0 and im.plan_wps.shape == (5, 4)
     assert np.isfinite(im.plan_wps).all()
 
 
 @pytest.mark.slow
 def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     ins = tab.inspector
-    _open_tab(page, "Inspect", "Every rollout")
+    ui.open_tab(page, "Inspect", "Every rollout")
     ins.outcome.value = "failures"
-    first = _wait(
+    first = ui.wait(
         lambda: ins.rollout.options[0] if "✘" in ins.rollout.options[0] else None, 10, "failures listed"
     )
     assert all("✘" in o for o in ins.rollout.options), "only failures"
@@ -513,13 +357,15 @@ def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     failed = studio.store.catalog.rollouts(success=False, checkpoint_id="fixture-run/best")
     first = ins.rollout.options[0]
     assert first.startswith(failed[0].id) and failed[0].failure_stage in first
-    _click_until(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
+    ui.click_until(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
     assert tab.mode == "replay"
     steps = ins.replay.num_steps
     ins.timeline.slider.value = steps // 2
-    _wait(lambda: f"Step {steps // 2} of" in ins.plan_info.content, 30, "the timeline to move")
-    _wait(lambda: "predicted latent state" in ins.plan_info.content, 20, "a predicted image beside the frame")
-    _shot(page, shots / "inspect.png")
+    ui.wait(lambda: f"Step {steps // 2} of" in ins.plan_info.content, 30, "the timeline to move")
+    ui.wait(
+        lambda: "predicted latent state" in ins.plan_info.content, 20, "a predicted image beside the frame"
+    )
+    ui.shot(page, shots / "inspect.png")
     mid = ins.replay.poses_at(steps // 2)
     assert not np.allclose(mid, ins.replay.poses_at(0)), "the scene moves along the timeline"
     assert "plan" in tab.view._overlays
@@ -535,27 +381,27 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     camera frames and the scene, the shorter rollout holding its last frame."""
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     cmp = tab.compare
     run = studio.data_dir / "runs" / "tiny-run"
     tiny = Path(__file__).resolve().parents[1] / "eval" / "tiny_checkpoint.py"
     done = subprocess.run([sys.executable, str(tiny), str(run / "best.pt")], capture_output=True, text=True,
                           timeout=120)  # fmt: skip  # its own process: this one never imports torch
     assert done.returncode == 0, done.stderr[-2000:]
-    _open_tab(page, "Compare", "Run two checkpoints on the")
-    _wait(lambda: "tiny-run/best" in cmp.ck_b.options, 20, "the new run among the checkpoints")
+    ui.open_tab(page, "Compare", "Run two checkpoints on the")
+    ui.wait(lambda: "tiny-run/best" in cmp.ck_b.options, 20, "the new run among the checkpoints")
     cmp.ck_a.value, cmp.ck_b.value = "oracle", "tiny-run/best"
     cmp.tasks.value = TRAIN_TASKS[0]
     cmp.episodes.value = 2
     cmp.seed.value = 1
-    _click(page.get_by_role("button", name="Start", exact=True))
-    job = _wait(lambda: cmp.job, 30, "the compare job")
-    _wait(lambda: job.progress is not None and "episode 1 of 2" in job.progress.message, 180, "episode 1 of 2",
+    ui.click(page.get_by_role("button", name="Start", exact=True))
+    job = ui.wait(lambda: cmp.job, 30, "the compare job")
+    ui.wait(lambda: job.progress is not None and "episode 1 of 2" in job.progress.message, 180, "episode 1 of 2",
           lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}")  # fmt: skip
     with contextlib.suppress(PlaywrightTimeout):  # the page may already show the end: a screenshot is no test
         page.get_by_text(re.compile(r"episode \d of 2")).first.wait_for(timeout=20_000)
-    _shot(page, shots / "compare-running.png")
-    _wait(lambda: "finished:" in cmp.status.content, 180, "the comparison to finish",
+    ui.shot(page, shots / "compare-running.png")
+    ui.wait(lambda: "finished:" in cmp.status.content, 180, "the comparison to finish",
           lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}")  # fmt: skip
     page.get_by_text("episodes in").first.wait_for(timeout=60_000)
     assert len(cmp.rows) == 2 and all(r.difference == "A only" for r in cmp.rows), cmp.table.content
@@ -569,9 +415,9 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     a = {(r.task, r.seed, r.expert_episode_id) for r in catalog.rollouts(eval_id=job.result["eval_ids"][0])}
     b = {(r.task, r.seed, r.expert_episode_id) for r in catalog.rollouts(eval_id=job.result["eval_ids"][1])}
     assert a == b and len(a) == 2, "A and B rolled out the identical episodes"
-    _shot(page, shots / "compare-table.png", scroll_to="Per-seed table")
+    ui.shot(page, shots / "compare-table.png", scroll_to="Per-seed table")
 
-    _click_until(page, page.get_by_role("button", name="Open side by side"), "Paths: A blue")
+    ui.click_until(page, page.get_by_role("button", name="Open side by side"), "Paths: A blue")
     assert tab.mode == "compare" and {"path", "path_b", "ee_a", "ee_b"} <= set(tab.view._overlays)
     sa, sb = cmp.sides
     steps = max(sa.steps, sb.steps)
@@ -580,74 +426,74 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     half = first.shape[1] // 2
     mid = min(sa.steps, sb.steps) * 2 // 3
     cmp.timeline.slider.value = mid
-    _wait(lambda: f"Step {mid} of {steps - 1}." in cmp.step_info.content, 30, "the shared timeline to move")
+    ui.wait(lambda: f"Step {mid} of {steps - 1}." in cmp.step_info.content, 30, "the shared timeline to move")
     moved = np.asarray(cmp.image.image)
     body = slice(20, None)  # below the labels drawn on the frames
     assert not np.array_equal(first[body, :half], moved[body, :half]), "A's camera frame follows the timeline"
     assert not np.array_equal(first[body, half:], moved[body, half:]), "B's camera frame follows the timeline"
     page.get_by_text(f"Step {mid} of {steps - 1}.").first.wait_for(timeout=60_000)
-    _shot(page, shots / "compare-playback.png", scroll_to="The scene shows")
+    ui.shot(page, shots / "compare-playback.png", scroll_to="The scene shows")
     cmp.timeline.slider.value = steps - 1  # past the shorter rollout's end: it holds its last frame
     shorter = sa if sa.steps < sb.steps else sb
-    _wait(lambda: f"Step {steps - 1} of" in cmp.step_info.content, 30, "the timeline's end")
+    ui.wait(lambda: f"Step {steps - 1} of" in cmp.step_info.content, 30, "the timeline's end")
     held = shorter.describe(steps - 1)
     assert "holding its last frame" in held and held in cmp.step_info.content
     cmp.shows.value = "B"
-    _wait(lambda: "The scene shows B." in cmp.step_info.content, 10, "the scene to show B")
+    ui.wait(lambda: "The scene shows B." in cmp.step_info.content, 10, "the scene to show B")
     page.get_by_text("The scene shows B.").first.wait_for(timeout=60_000)
-    _shot(page, shots / "compare-end-b.png", scroll_to="The scene shows")
+    ui.shot(page, shots / "compare-end-b.png", scroll_to="The scene shows")
     # The same rows again from the catalog: the comparison's two stored evaluations, compared without running.
     ran = [r.to_dict() for r in cmp.rows]
-    _click(page.get_by_text("Stored evaluations"))
-    _wait(lambda: cmp.eval_a.value.startswith(job.result["eval_ids"][0] + " ")
+    ui.click(page.get_by_text("Stored evaluations"))
+    ui.wait(lambda: cmp.eval_a.value.startswith(job.result["eval_ids"][0] + " ")
           and cmp.eval_b.value.startswith(job.result["eval_ids"][1] + " "), 20, "the comparison's evaluations")  # fmt: skip
     cmp.rows = []
-    _click_until(page, page.get_by_role("button", name="Compare stored rollouts"), "2 shared episodes")
+    ui.click_until(page, page.get_by_role("button", name="Compare stored rollouts"), "2 shared episodes")
     assert [r.to_dict() for r in cmp.rows] == ran
 
 
 def test_workers_panel_lists_the_embedded_workers(studio, page, shots):
-    tab = _tab(studio)
-    _click(page.get_by_role("tab", name="Workers"))
+    tab = ui.tab(studio)
+    ui.click(page.get_by_role("tab", name="Workers"))
     for worker in studio.embedded.workers:
         page.get_by_text(worker).first.wait_for(timeout=60_000)
     text = tab.workers.describe()
     assert "| sim |" in text and "| train |" in text and "rollout" in text
     (sim,) = studio.hub.directory.workers("sim")
     assert sim.status.sessions == 1, "this tab's teleop session runs on the embedded sim worker"
-    _shot(page, shots / "workers.png")
+    ui.shot(page, shots / "workers.png")
 
 
 @pytest.mark.slow
 def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
     """The policy shipped with the studio, on a held-out task: Plan shows waypoints and decoded latent images,
     Execute finishes with an outcome recorded against it."""
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     im = tab.imitate
     policy = studio.runs.shipped_for("pick_place")
     assert policy is not None, "no shipped pick-and-place policy"
     studio.runs.set_active(policy.id)
-    _click(page.get_by_role("tab", name="Imitate"))
+    ui.click(page.get_by_role("tab", name="Imitate"))
     im.task.value = HELD_OUT + " (held-out)"
-    _wait(lambda: policy.id in im.policy.content, 20, "the shipped policy to be active")
+    ui.wait(lambda: policy.id in im.policy.content, 20, "the shipped policy to be active")
     assert policy.summary and policy.summary in im.policy.content, "its measured results are shown"
-    _click(page.get_by_role("button", name="Make a scripted demonstration"))
+    ui.click(page.get_by_role("button", name="Make a scripted demonstration"))
     page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
     before = im.plan_job
-    _click(page.get_by_role("button", name="Plan", exact=True))
-    job = _wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
+    ui.click(page.get_by_role("button", name="Plan", exact=True))
+    job = ui.wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
     assert job.spec["checkpoint"] == policy.path
-    _wait(lambda: job.result is not None and im.latent_strip.visible, 120, "the decoded latent trajectory")
+    ui.wait(lambda: job.result is not None and im.latent_strip.visible, 120, "the decoded latent trajectory")
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert job.result["latent_images"] == 5  # r_2 … r_6 of the shipped policy, decoded
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     time.sleep(1.0)  # let the browser draw the new images before the screenshot
-    _shot(page, shots / "imitate-plan-shipped.png", scroll_to="Predicted latent trajectory")
+    ui.shot(page, shots / "imitate-plan-shipped.png", scroll_to="Predicted latent trajectory")
     im.speed.value = "as fast as possible"
-    _click(page.get_by_role("button", name="Execute", exact=True))
+    ui.click(page.get_by_role("button", name="Execute", exact=True))
     page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
-    result = _wait(lambda: im.rollout.result, 30, "the rollout's result")
-    _shot(page, shots / "imitate-outcome-shipped.png")
+    result = ui.wait(lambda: im.rollout.result, 30, "the rollout's result")
+    ui.shot(page, shots / "imitate-outcome-shipped.png")
     row = [r for r in studio.store.catalog.rollouts(task=HELD_OUT) if r.id == result["rollout_id"]]
     assert row and row[0].checkpoint_id == policy.id
 
@@ -659,7 +505,7 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
     refused with the reason and push keeps its policy."""
     import re
 
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     im, train = tab.imitate, tab.train
     push = studio.runs.shipped_for("push")
     assert push is not None and push.id == "default/push-cpu" and push.scene == "push"
@@ -668,12 +514,12 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
     studio.runs.set_active(pick.id)  # the pick-and-place choice must not leak into push
 
     # Train: the active-policy choice is for the scene chosen there; another scene's policy is refused.
-    _open_tab(page, "Train", "Held out (never trained on)")
-    _choose(page, "Scene", "push",
+    ui.open_tab(page, "Train", "Held out (never trained on)")
+    ui.choose(page, "Scene", "push",
             lambda: train.scene.value == "push" and "plans **push** tasks" in train.active_note.content,
             "the push policy in Train", lambda: train.active_note.content)  # fmt: skip
     assert train.active.value == push.label and "(shipped)" in train.active_note.content
-    _choose(page, "Active policy", re.compile(r"^shipped policy pick-place-cpu"), lambda: "✘" in train.active_note.content,
+    ui.choose(page, "Active policy", re.compile(r"^shipped policy pick-place-cpu"), lambda: "✘" in train.active_note.content,
             "the refusal", lambda: train.active_note.content)  # fmt: skip
     assert "`default/pick-place-cpu` was trained on pick_place tasks: it does not plan push tasks" in (
         train.active_note.content
@@ -682,44 +528,44 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
         "push keeps its policy"
     )
     page.get_by_text("it does not plan push tasks").first.wait_for(timeout=30_000)
-    _shot(page, shots / "train-push-refused.png", scroll_to="it does not plan push tasks")
+    ui.shot(page, shots / "train-push-refused.png", scroll_to="it does not plan push tasks")
 
     # Imitate: the policy line follows the selected task's scene.
-    _open_tab(page, "Imitate", "Choose a")
+    ui.open_tab(page, "Imitate", "Choose a")
     im.task.value = HELD_OUT + " (held-out)"
-    _wait(lambda: f"**pick_place** tasks: `{pick.id}`" in im.policy.content, 20, "the pick-and-place policy line",
+    ui.wait(lambda: f"**pick_place** tasks: `{pick.id}`" in im.policy.content, 20, "the pick-and-place policy line",
           lambda: im.policy.content)  # fmt: skip
     im.task.value = PUSH_HELD_OUT + " (held-out)"
-    _wait(lambda: f"**push** tasks: `{push.id}`" in im.policy.content, 20, "the push policy line",
+    ui.wait(lambda: f"**push** tasks: `{push.id}`" in im.policy.content, 20, "the push policy line",
           lambda: im.policy.content)  # fmt: skip
     assert push.summary and push.summary in im.policy.content, "its measured results are shown"
     page.get_by_text("default/push-cpu").first.wait_for(timeout=30_000)
     im.seed.value = 3
     before_demo = im.expert_job
-    _click(page.get_by_role("button", name="Make a scripted demonstration"))
-    _wait(lambda: im.expert_job is not before_demo and im.expert_job, 30, "the scripted demonstration job")
+    ui.click(page.get_by_role("button", name="Make a scripted demonstration"))
+    ui.wait(lambda: im.expert_job is not before_demo and im.expert_job, 30, "the scripted demonstration job")
     page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
     demo = studio.store.get(im.demo_id())
     assert (demo.task, demo.embodiment, demo.source) == (PUSH_HELD_OUT, "sawyer", "scripted")
     before = im.plan_job
-    _click(page.get_by_role("button", name="Plan", exact=True))
-    job = _wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
+    ui.click(page.get_by_role("button", name="Plan", exact=True))
+    job = ui.wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
     assert job.spec["checkpoint"] == push.path and job.spec["task"] == PUSH_HELD_OUT
-    _wait(lambda: job.result is not None and im.latent_strip.visible, 120, "the decoded latent trajectory",
+    ui.wait(lambda: job.result is not None and im.latent_strip.visible, 120, "the decoded latent trajectory",
           lambda: im.status.content)  # fmt: skip
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert job.result["latent_images"] > 0 and im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     assert im.plan_wps[2, 1] - im.plan_wps[1, 1] < -0.1, f"a backward push: {im.plan_wps}"
     time.sleep(1.0)  # let the browser draw the plan before the screenshot
-    _shot(page, shots / "imitate-push-plan.png", scroll_to="Policy for")
-    _shot(page, shots / "imitate-push-latents.png", scroll_to="Predicted latent trajectory")
+    ui.shot(page, shots / "imitate-push-plan.png", scroll_to="Policy for")
+    ui.shot(page, shots / "imitate-push-latents.png", scroll_to="Predicted latent trajectory")
     im.speed.value = "as fast as possible"
-    _click(page.get_by_role("button", name="Execute", exact=True))
+    ui.click(page.get_by_role("button", name="Execute", exact=True))
     page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
-    result = _wait(lambda: im.rollout.result, 30, "the rollout's result")
+    result = ui.wait(lambda: im.rollout.result, 30, "the rollout's result")
     assert im.rollout.spec["checkpoint"] == push.path and im.rollout.spec["checkpoint_id"] == push.id
     time.sleep(1.0)
-    _shot(page, shots / "imitate-push-outcome.png", scroll_to="Policy for")
+    ui.shot(page, shots / "imitate-push-outcome.png", scroll_to="Policy for")
     assert result["success"] is True, result  # seeded: this scene and demonstration succeed
     assert "✔ Success" in im.outcome.content
     row = [r for r in studio.store.catalog.rollouts(task=PUSH_HELD_OUT) if r.id == result["rollout_id"]]
@@ -737,7 +583,7 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     from studio.data.video import probe_video
     from studio.data.video_export import export_episode_video
 
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     im, upload = tab.imitate, tab.upload
     push = studio.runs.active("push", "human")
     assert push.id == "default/push-human-demos", (
@@ -747,7 +593,7 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
 
     # The simulated hand's scripted demonstration (an `expert` job on the sim worker, as Imitate's button makes).
     job = studio.jobs.submit("expert", {"task": PUSH_HELD_OUT, "seed": 1003, "robot": "hand"})
-    _wait(lambda: job.terminal and job.result, 120, "the hand's demonstration", lambda: job.status)
+    ui.wait(lambda: job.terminal and job.result, 120, "the hand's demonstration", lambda: job.status)
     hand = studio.store.get(job.result["episode_id"])
     assert (hand.task, hand.embodiment, hand.role, hand.height, hand.width) == (PUSH_HELD_OUT, "human", "expert",
                                                                                 240, 320)  # fmt: skip
@@ -761,55 +607,55 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     )
 
     # Upload it as a user does: the task shown, the file, the filmstrip, Save.
-    _open_tab(page, "Upload", "Upload a video")
-    _choose(page, "Task shown", PUSH_HELD_OUT, lambda: upload.task.value == PUSH_HELD_OUT, "the task shown",
+    ui.open_tab(page, "Upload", "Upload a video")
+    ui.choose(page, "Task shown", PUSH_HELD_OUT, lambda: upload.task.value == PUSH_HELD_OUT, "the task shown",
             lambda: upload.task.value)  # fmt: skip
     before = {m.id for m in studio.store.episodes(source="upload")}
     page.locator("input[type=file]").first.set_input_files(str(video))
-    _wait(lambda: upload.pending is not None, 90, "the upload to be decoded", lambda: upload.status.content)
+    ui.wait(lambda: upload.pending is not None, 90, "the upload to be decoded", lambda: upload.status.content)
     page.get_by_text("Check the task above").first.wait_for(timeout=60_000)
     assert "hand-push.mp4" in upload.status.content and upload.strip.visible
     time.sleep(1.0)  # let the browser draw the filmstrip
-    _shot(page, shots / "upload-hand-filmstrip.png", scroll_to="The 10 frames the model will see")
-    _click(page.get_by_role("button", name="Save as expert demonstration"))
+    ui.shot(page, shots / "upload-hand-filmstrip.png", scroll_to="The 10 frames the model will see")
+    ui.click(page.get_by_role("button", name="Save as expert demonstration"))
     page.get_by_text("as an expert demonstration of").first.wait_for(timeout=60_000)
     (up,) = [m for m in studio.store.episodes(source="upload") if m.id not in before]
     assert (up.task, up.embodiment, up.role, up.source) == (PUSH_HELD_OUT, "human", "expert", "upload")
     assert up.extra["source_size"] == [180, 240] and up.extra["original_name"] == "hand-push.mp4"
 
     # Imitate: the uploaded demonstration, planned and executed by the push policy that learnt from people.
-    _open_tab(page, "Imitate", "Choose a")
+    ui.open_tab(page, "Imitate", "Choose a")
     im.task.value = PUSH_HELD_OUT + " (held-out)"
     option = f"{up.id} · upload · human"
-    _wait(
+    ui.wait(
         lambda: option in im.demo.options, 30, "the upload among the demonstrations", lambda: im.demo.options
     )
-    _choose(page, "Demonstration", option, lambda: im.demo_id() == up.id, "the upload to be selected",
+    ui.choose(page, "Demonstration", option, lambda: im.demo_id() == up.id, "the upload to be selected",
             lambda: im.demo.value)  # fmt: skip
-    _wait(lambda: f"**push** tasks: `{push.id}` (learnt from human demonstrations, like this one)"
+    ui.wait(lambda: f"**push** tasks: `{push.id}` (learnt from human demonstrations, like this one)"
           in im.policy.content, 20, "the policy line of a human demonstration", lambda: im.policy.content)  # fmt: skip
     page.get_by_text("default/push-human-demos").first.wait_for(timeout=30_000)
     im.seed.value = 3
     before_plan = im.plan_job
-    _click(page.get_by_role("button", name="Plan", exact=True))
-    plan = _wait(lambda: im.plan_job is not before_plan and im.plan_job, 30, "a new plan job")
+    ui.click(page.get_by_role("button", name="Plan", exact=True))
+    plan = ui.wait(lambda: im.plan_job is not before_plan and im.plan_job, 30, "a new plan job")
     assert plan.spec["expert_episode_id"] == up.id and plan.spec["checkpoint"] == push.path
     assert plan.spec["task"] == PUSH_HELD_OUT
-    _wait(lambda: plan.terminal and plan.result is not None, 120, "the plan", lambda: im.status.content)
+    ui.wait(lambda: plan.terminal and plan.result is not None, 120, "the plan", lambda: im.status.content)
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     time.sleep(1.0)  # let the browser draw the plan and the expert frames
-    _shot(page, shots / "imitate-upload-plan.png", scroll_to="Policy for")
-    _shot(page, shots / "imitate-upload-expert-frames.png", scroll_to="Expert frames the model sees")
+    ui.shot(page, shots / "imitate-upload-plan.png", scroll_to="Policy for")
+    ui.shot(page, shots / "imitate-upload-expert-frames.png", scroll_to="Expert frames the model sees")
     im.speed.value = "as fast as possible"
-    _click(page.get_by_role("button", name="Execute", exact=True))
-    rollout = _wait(lambda: im.rollout is not None and im.rollout.spec.get("expert_episode_id") == up.id and
+    ui.click(page.get_by_role("button", name="Execute", exact=True))
+    rollout = ui.wait(lambda: im.rollout is not None and im.rollout.spec.get("expert_episode_id") == up.id and
                     im.rollout, 30, "the rollout of the upload")  # fmt: skip
     assert rollout.spec["checkpoint_id"] == push.id
     page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
-    result = _wait(lambda: rollout.result, 30, "the rollout's result")
+    result = ui.wait(lambda: rollout.result, 30, "the rollout's result")
     time.sleep(1.0)
-    _shot(page, shots / "imitate-upload-outcome.png", scroll_to="re-plan(s); rollout")
+    ui.shot(page, shots / "imitate-upload-outcome.png", scroll_to="re-plan(s); rollout")
     outcome = "success" if result["success"] else f"failed at {result['failure_stage']}"
     print(f"\nthe Panda imitating the uploaded hand video of {PUSH_HELD_OUT}: {outcome}")
     assert result["success"], result
@@ -823,12 +669,12 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     """Meta-World in the browser: choose the scene in the Teleop tab's dropdown (the robot choice narrows to the
     Sawyer), drag the arm, record and save; the Imitate tab then offers the recording as a demonstration of its
     task, and the shipped Meta-World policy plans from it on the Meta-World scene."""
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     tp, im = tab.teleop, tab.imitate
-    _open_tab(page, "Teleop", "Drag the gizmo")
-    _choose(page, "Scene", "metaworld", lambda: tp.info is not None and tp.info.scene == "metaworld",
+    ui.open_tab(page, "Teleop", "Drag the gizmo")
+    ui.choose(page, "Scene", "metaworld", lambda: tp.info is not None and tp.info.scene == "metaworld",
             "the Meta-World session to open", timeout=120)  # fmt: skip
-    _wait(
+    ui.wait(
         lambda: "ready" in tp.status.content and tp.info.task in tp.status.content, 60, "the session's status"
     )
     assert tp.robot.options == ("sawyer",) and tp.info.robot == "sawyer"
@@ -836,48 +682,48 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     assert task.startswith("metaworld/")
     # The live camera preview shows Meta-World's corner view (a black background, mean ~58), not the tabletop it
     # showed before (mean ~174), which it once kept showing for a while under the "(live)" label.
-    _wait(lambda: 5 < float(np.asarray(tp.preview.image).mean()) < 120, 30, "the Meta-World camera preview",
+    ui.wait(lambda: 5 < float(np.asarray(tp.preview.image).mean()) < 120, 30, "the Meta-World camera preview",
           lambda: f"preview mean {float(np.asarray(tp.preview.image).mean()):.1f}")  # fmt: skip
     time.sleep(1.0)
-    _shot(page, shots / "teleop-metaworld.png")
-    assert _colours(shots / "teleop-metaworld.png") > 300, "the Meta-World scene looks blank"
+    ui.shot(page, shots / "teleop-metaworld.png")
+    assert ui.colours(shots / "teleop-metaworld.png") > 300, "the Meta-World scene looks blank"
     before = {m.id for m in studio.store.episodes()}
-    _click(page.get_by_role("button", name="Record"))
-    _wait(lambda: tp._recording and "REC" in tp.rec_status.content, 60, "recording to start")
-    start = np.asarray(_wait(tp.client.latest_pose, 5, "a pose").ee_pos)
+    ui.click(page.get_by_role("button", name="Record"))
+    ui.wait(lambda: tp._recording and "REC" in tp.rec_status.content, 60, "recording to start")
+    start = np.asarray(ui.wait(tp.client.latest_pose, 5, "a pose").ee_pos)
     goal = start + np.array([0.05, 0.05, -0.05])
     for i in range(1, 61):  # the gizmo's drag callback, as the browser reaches it
         tp.move_to(start + (goal - start) * i / 60)
         time.sleep(1 / 60)
-    _wait(lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.02, 20,
+    ui.wait(lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.02, 20,
           "the Sawyer to follow the drag")  # fmt: skip
-    _stop_and_save(page, tab)
+    ui.stop_and_save(page, tab)
     (new,) = [m for m in studio.store.episodes() if m.id not in before]
     assert (new.scene, new.task, new.source, new.role, new.embodiment) == ("metaworld", task, "teleop", "expert",
                                                                            "sawyer")  # fmt: skip
     _, _, arrays = studio.store.load_arrays(new.id)
     assert np.linalg.norm(arrays["ee_pos_world"][-1] - arrays["ee_pos_world"][0]) > 0.05
 
-    _open_tab(page, "Imitate", "Choose a")
+    ui.open_tab(page, "Imitate", "Choose a")
     im.task.value = next(label for label, name in im.labels.items() if name == task)
     # None was chosen for Meta-World: the shipped Meta-World policy plans it, learnt from Sawyer demonstrations like
     # this recording (the pick-and-place policy chosen earlier never plans another scene's task).
     mw = studio.runs.shipped_for("metaworld")
     assert mw is not None and mw.id == "default/metaworld-cpu" and mw.scene == "metaworld"
-    _wait(lambda: f"**metaworld** tasks: `{mw.id}` (learnt from sawyer demonstrations" in im.policy.content, 20,
+    ui.wait(lambda: f"**metaworld** tasks: `{mw.id}` (learnt from sawyer demonstrations" in im.policy.content, 20,
           "the Meta-World policy line", lambda: im.policy.content)  # fmt: skip
-    _wait(
+    ui.wait(
         lambda: any(o.startswith(new.id) for o in im.demo.options),
         20,
         "the recording among the demonstrations",
     )
     im.demo.value = next(o for o in im.demo.options if o.startswith(new.id))
     before_job = im.plan_job
-    _click(page.get_by_role("button", name="Plan", exact=True))
-    job = _wait(lambda: im.plan_job is not before_job and im.plan_job, 30, "a new plan job")
+    ui.click(page.get_by_role("button", name="Plan", exact=True))
+    job = ui.wait(lambda: im.plan_job is not before_job and im.plan_job, 30, "a new plan job")
     assert job.spec["expert_episode_id"] == new.id and job.spec["robot"] == "sawyer"
     assert job.spec["checkpoint"] == mw.path
-    _wait(lambda: job.result is not None, 120, "the plan on the Meta-World scene")
+    ui.wait(lambda: job.result is not None, 120, "the plan on the Meta-World scene")
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     # The shipped Meta-World policy plans with gated guidance: its plan from the scene alone is drawn in grey and
@@ -886,7 +732,7 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     gate = read_checkpoint_info(mw.path)["config"]["model"]["guidance_gate"]
     assert gate > 0 and "demonstration gain" in im.status.content, im.status.content
     assert f"gate {gate:g}" in im.status.content, (gate, im.status.content)
-    _shot(page, shots / "imitate-plan-metaworld.png")
+    ui.shot(page, shots / "imitate-plan-metaworld.png")
 
 
 @pytest.mark.slow
@@ -899,36 +745,36 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     from studio.sim.env import SimEnv
     from studio.sim.experts import expert_waypoints
 
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     ins, tp = tab.inspector, tab.teleop
     failed = studio.store.catalog.rollouts(success=False, checkpoint_id="fixture-run/best")[0]
-    _open_tab(page, "Inspect", "Every rollout")
+    ui.open_tab(page, "Inspect", "Every rollout")
     ins.outcome.value = "failures"
     ins.checkpoint.value = "fixture-run/best"
-    _wait(lambda: ins.rollout.options[0].startswith(failed.id), 10, "the failed rollout listed")
+    ui.wait(lambda: ins.rollout.options[0].startswith(failed.id), 10, "the failed rollout listed")
     shown = (
         ins.replay
     )  # an earlier test may have opened it: wait for this Open's replay (it resets the timeline)
-    _click_until_done(page.get_by_role("button", name="Open", exact=True).first,
-                      lambda: _wait(lambda: ins.replay is not shown and ins.record.id == failed.id, 90, "the replay"))  # fmt: skip
+    ui.click_until_done(page.get_by_role("button", name="Open", exact=True).first,
+                      lambda: ui.wait(lambda: ins.replay is not shown and ins.record.id == failed.id, 90, "the replay"))  # fmt: skip
     # A click repeated because the first open was slow opens the rollout again later, resetting the timeline to
     # step 0: wait until no open is queued before moving it.
-    _wait(lambda: "opening the rollout" not in tab.actions, 120, "every queued Open", lambda: tab.actions)
+    ui.wait(lambda: "opening the rollout" not in tab.actions, 120, "every queued Open", lambda: tab.actions)
     page.get_by_text("No episode was forked from this rollout yet").first.wait_for(timeout=30_000)
     k = 40  # the arm is on its way to the misaimed grasp
     ins.timeline.slider.value = k
-    _wait(lambda: f"Step {k} of" in ins.plan_info.content, 30, "the timeline to move")
+    ui.wait(lambda: f"Step {k} of" in ins.plan_info.content, 30, "the timeline to move")
     before = {m.id for m in studio.store.episodes()}
     assert "opening the rollout" not in tab.actions and f"Step {k} of" in ins.plan_info.content
-    _click_until(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
-    _wait(lambda: tp._recording and tab.mode == "teleop" and tp.info.robot == "panda", 60, "the fork session",
-          lambda: _teleop_state(tab))  # fmt: skip
+    ui.click_until(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
+    ui.wait(lambda: tp._recording and tab.mode == "teleop" and tp.info.robot == "panda", 60, "the fork session",
+          lambda: ui.teleop_state(tab))  # fmt: skip
     assert (tp.info.task, tp.info.seed) == (failed.task, failed.seed)
     # A pose of the forked session. Nothing commands the arm yet, so from the restored tick it moves as the
     # rollout's physics state carries it (the arm was moving at tick k): exactly as a local restore stepped on
     # with the target held, however many ticks the session ran before this pose was seen.
     first = tp.client.poses.wait_until(lambda f: f.body_count == len(tp.info.body_names) and f.step >= k, 10)
-    assert first is not None, f"no pose of the forked scene; {_teleop_state(tab)}"
+    assert first is not None, f"no pose of the forked scene; {ui.teleop_state(tab)}"
     src = studio.store.catalog.get_rollout(failed.id)
     fs = fork_source(studio.store, src.id, k)
     with SimEnv("pick_place", "panda", control_dt=fs.control_dt) as env:
@@ -938,8 +784,8 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
         for _ in range(first.step - k):
             env.step(env.target, env.gripper_cmd)
         np.testing.assert_allclose(first.ee_pos, env.ee_pos, atol=1e-6,
-                                   err_msg=f"step {first.step}; {_teleop_state(tab)}")  # fmt: skip
-    _shot(page, shots / "fork-restored.png")
+                                   err_msg=f"step {first.step}; {ui.teleop_state(tab)}")  # fmt: skip
+    ui.shot(page, shots / "fork-restored.png")
 
     # The correction a person would drag: above the bar, down, grasp, up, over the blue target, down, release.
     with SimEnv("pick_place", "panda") as env:
@@ -955,13 +801,13 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
             tp.gizmo.position = p
             tp.move_to(p)
             time.sleep(1 / 60)
-        _wait(lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.01, 20,
-              f"the arm to reach {np.round(goal, 3)}", lambda: _teleop_state(tab))  # fmt: skip
+        ui.wait(lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.01, 20,
+              f"the arm to reach {np.round(goal, 3)}", lambda: ui.teleop_state(tab))  # fmt: skip
 
     drag(grasp[:3] + np.array([0.0, 0.0, 0.1]))
     drag(grasp[:3], 1.0)
-    _click(page.get_by_role("button", name="Close", exact=True))
-    _wait(lambda: tp.client.latest_pose().gripper == 1.0, 10, "the gripper to close")
+    ui.click(page.get_by_role("button", name="Close", exact=True))
+    ui.wait(lambda: tp.client.latest_pose().gripper == 1.0, 10, "the gripper to close")
     time.sleep(0.8)
     drag(lift[:3])
     # The recording gains a tick with every control tick: its length is the pose's step plus a fixed offset (read
@@ -972,29 +818,31 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     # The sim worker dies while the bar is held.
     (sim,) = [p for p in studio.embedded.processes if p.kind == "sim"]
     sim.process.send_signal(signal.SIGKILL)
-    _wait(lambda: "The sim worker was lost mid-recording" in tp.status.content or tp.client is None, 60,
-          "the loss to be noticed", lambda: _teleop_state(tab))  # fmt: skip
+    ui.wait(lambda: "The sim worker was lost mid-recording" in tp.status.content or tp.client is None, 60,
+          "the loss to be noticed", lambda: ui.teleop_state(tab))  # fmt: skip
     held_steps = dying.latest_pose().step + offset  # recorded when the worker's last pose left it
-    _wait(lambda: tp._recording and tp.client is not None and tp.client.worker != sim.worker
+    ui.wait(lambda: tp._recording and tp.client is not None and tp.client.worker != sim.worker
           and tp.status.content.startswith("Continuing the interrupted recording"), 180,
-          "the recording to continue on the restarted worker", lambda: _teleop_state(tab))  # fmt: skip
+          "the recording to continue on the restarted worker", lambda: ui.teleop_state(tab))  # fmt: skip
     resumed = tp.client.state.wait_until(lambda s: s.recorded_steps > 0, 10).recorded_steps
     # Draft chunks leave every 0.1 s (5 ticks): at most that and the chunk in flight are lost, and a tick the dead
     # worker published no pose of can only be one sent in the same instant.
     assert held_steps - 10 <= resumed <= held_steps + 1, (held_steps, resumed)
     ee = np.asarray(tp.client.latest_pose().ee_pos)
     assert np.linalg.norm(ee - lift[:3]) < 0.02, "the arm is where it was when its worker died"
-    _open_tab(page, "Inspect", "Recording the fork")
-    _shot(page, shots / "fork-resumed.png", scroll_to="Fork from this moment")
+    ui.open_tab(page, "Inspect", "Recording the fork")
+    ui.shot(page, shots / "fork-resumed.png", scroll_to="Fork from this moment")
     drag(carry[:3], 2.0)
     drag(place[:3], 1.0)
-    _click(page.get_by_role("button", name="Open", exact=True).last)
+    ui.click(page.get_by_role("button", name="Open", exact=True).last)
     time.sleep(1.0)
     drag(place[:3] + np.array([0.0, 0.0, 0.08]))
-    _wait(lambda: tp.success.value, 10, "the task's check to see the bar placed", lambda: _teleop_state(tab))
-    _click_until_done(page.get_by_role("button", name="Stop & save the fork"),
-                      lambda: _wait(lambda: tp.status.content.startswith("Saved"), 120, "the fork to be stored",
-                                    lambda: _teleop_state(tab)))  # fmt: skip
+    ui.wait(
+        lambda: tp.success.value, 10, "the task's check to see the bar placed", lambda: ui.teleop_state(tab)
+    )
+    ui.click_until_done(page.get_by_role("button", name="Stop & save the fork"),
+                      lambda: ui.wait(lambda: tp.status.content.startswith("Saved"), 120, "the fork to be stored",
+                                    lambda: ui.teleop_state(tab)))  # fmt: skip
     (new,) = [m for m in studio.store.episodes() if m.id not in before]
     assert new.extra["forked_from"] == {"rollout": failed.id, "step": k, "episode": failed.episode_id}
     assert (new.role, new.embodiment, new.task, new.seed, new.success) == ("agent", "panda", failed.task,
@@ -1004,8 +852,8 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     np.testing.assert_array_equal(arrays["qpos"][: k + 1], rolled["qpos"][: k + 1])
     assert np.all(np.diff(arrays["time"]) > 0) and new.num_steps > resumed
     assert studio.drafts.drafts() == [], "the stored episode replaced its draft"
-    _wait(lambda: f"`{new.id}` (agent, from step {k}, ✔)" in ins.fork_status.content, 20, "the fork listed")
-    _shot(page, shots / "fork-saved.png")
+    ui.wait(lambda: f"`{new.id}` (agent, from step {k}, ✔)" in ins.fork_status.content, 20, "the fork listed")
+    ui.shot(page, shots / "fork-saved.png")
 
 
 @pytest.mark.slow
@@ -1013,32 +861,32 @@ def test_a_rollout_whose_scene_no_longer_loads_says_so(studio, page, shots, monk
     import studio.sim.scenes as scenes
     from studio.data.forks import STATES_FILE
 
-    tab = _tab(studio)
+    tab = ui.tab(studio)
     ins, tp = tab.inspector, tab.teleop
     failed = studio.store.catalog.rollouts(success=False, checkpoint_id="fixture-run/best")[0]
-    _open_tab(page, "Inspect", "Every rollout")
+    ui.open_tab(page, "Inspect", "Every rollout")
     ins.outcome.value = "failures"
     ins.checkpoint.value = "fixture-run/best"
-    _wait(lambda: ins.rollout.options[0].startswith(failed.id), 10, "the failed rollout listed")
+    ui.wait(lambda: ins.rollout.options[0].startswith(failed.id), 10, "the failed rollout listed")
 
     def gone(*args, **kwargs):
         raise FileNotFoundError("scenes/pick_place.xml was removed")
 
     with monkeypatch.context() as m:  # the scene file is gone: replaying needs it
         m.setattr(scenes, "build_model", gone)
-        _click(page.get_by_role("button", name="Open", exact=True).first)
+        ui.click(page.get_by_role("button", name="Open", exact=True).first)
         page.get_by_text("cannot be replayed: its scene does not load here").first.wait_for(timeout=60_000)
-    _shot(page, shots / "inspect-scene-gone.png")
+    ui.shot(page, shots / "inspect-scene-gone.png")
     # The scene loads again, but its model changed since the rollout: the fork is refused with the reason.
-    _click_until(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
+    ui.click_until(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
     path = Path(failed.path) / STATES_FILE
     kept = path.read_bytes()
     try:
         with np.load(path) as data:
             np.savez_compressed(path, states=data["states"][:, :-2])
-        _click(page.get_by_role("button", name="Fork at this step"))
+        ui.click(page.get_by_role("button", name="Fork at this step"))
         page.get_by_text("the scene changed since the episode was recorded").first.wait_for(timeout=60_000)
     finally:
         path.write_bytes(kept)
     assert not tp._recording and studio.drafts.drafts() == [], "a refused fork leaves nothing behind"
-    _shot(page, shots / "fork-refused.png")
+    ui.shot(page, shots / "fork-refused.png")
