@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from studio.backend.messages import Role
+from studio.ui.demo_score_note import demo_score_note
 from studio.ui.guidance_note import guidance_note
 from studio.ui.images import side_by_side, thumbnail
 from studio.ui.timeline import Timeline
@@ -183,6 +184,8 @@ class InspectorPanel:
             f"{r.checkpoint_id or 'oracle'}; {self.n_plans} plan(s), {r.replans} re-plan(s), {waypoints} waypoints "
             f"executed, {r.num_steps} steps. Stages: {reached or '—'}.{note}"
         )
+        score = demo_score_note((r.extra or {}).get("demo_score"))  # its demonstration against training
+        self.info.content += f"\n\n{score}" if score else ""
         self.image.visible = True
         self.fork_folder.visible = True
         self._show_forks()
