@@ -113,6 +113,8 @@ class SceneView:
         self.body_names: tuple[str, ...] = ()
         self._bodies: dict[int, viser.FrameHandle] = {}
         self._nodes: list = []
+        self._scene_root: viser.FrameHandle | None = None
+        self._generation = 0  # numbers every load and overlay: no node name is ever created twice
         self._sent: np.ndarray | None = None
         self._lock = threading.RLock()
         self._frustum: viser.CameraFrustumHandle | None = None
@@ -132,7 +134,9 @@ class SceneView:
             self.key = key
             budget = MAX_FACES
             self.body_names = geometry.body_names
+            root = f"{self.root}/{self._fresh()}"
             with self.client.atomic():
+                self._scene_root = self.scene.add_frame(root, show_axes=False)
                 for i, g in enumerate(geometry.geoms):
                     rgba = np.asarray(g.rgba)
                     if rgba[3] < 0.05:
@@ -143,10 +147,10 @@ class SceneView:
                     self.faces_shown += len(mesh.faces)
                     body = self._bodies.get(g.body)
                     if body is None:
-                        body = self.scene.add_frame(f"{self.root}/b{g.body}", show_axes=False)
+                        body = self.scene.add_frame(f"{root}/b{g.body}", show_axes=False)
                         self._bodies[g.body] = body
                     node = self.scene.add_mesh_simple(
-                        f"{self.root}/b{g.body}/g{i}",
+                        f"{root}/b{g.body}/g{i}",
                         mesh.vertices.astype(np.float32),
                         mesh.faces.astype(np.uint32),
                         color=(int(255 * rgba[0]), int(255 * rgba[1]), int(255 * rgba[2])),
@@ -160,9 +164,21 @@ class SceneView:
                     self._nodes.append(node)
             self._sent = None
 
+    def _fresh(self) -> str:
+        """A name part never used before by this view.
+
+        A node created under the name of one removed a moment earlier is not a new node to the browser: viser
+        lets the create supersede the pending removal, and the browser keeps the old node's pose wherever the new
+        node's pose is viser's default (the identity, never sent). Bodies resting at the origin and geoms at
+        their body's origin then showed the previous scene's poses (a tilted pedestal, a tabletop and zones
+        elsewhere). A fresh root name makes every load a new set of nodes."""
+        self._generation += 1
+        return f"v{self._generation}"
+
     def _clear_bodies(self) -> None:
-        for handle in [*self._nodes, *self._bodies.values()]:
-            handle.remove()
+        if self._scene_root is not None:
+            self._scene_root.remove()  # removes every body and geom under it
+            self._scene_root = None
         self._nodes.clear()
         self._bodies.clear()
         self.faces_shown = 0

@@ -128,3 +128,36 @@ def test_heavy_meshes_are_decimated_to_the_budget_keeping_their_shape():
     geometry = msg.SceneGeometry(body_names=("ball",), geoms=(geom,), meshes=(spec,))
     view.load(geometry, "k")
     assert view.faces_shown <= scene_view.MAX_FACES
+
+
+def test_a_new_scene_replaces_every_node_of_the_previous_one_under_names_never_used_before():
+    """viser lets a node created under a just-removed name supersede the removal, and the browser then keeps the
+    removed node's pose wherever the new one's is the default: a scene switch must never re-create a name."""
+    import viser
+
+    from studio.backend import bus
+    from studio.ui.scene_view import SceneView
+
+    server = viser.ViserServer(host="127.0.0.1", port=bus.free_loopback_port(), verbose=False)
+    try:
+        view = SceneView(server)  # the broadcast scene: the same scene API as a tab's client
+        registry = server.scene._handle_from_node_name
+
+        def shown() -> set[str]:
+            return {n for n in registry if n.startswith("/sim/")}
+
+        a, b = _two_boxes(), msg.SceneGeometry(body_names=("a",), geoms=_two_boxes().geoms[:1], meshes=())
+        seen: set[str] = set()
+        for geometry, key in ((a, "a"), (b, "b"), (a, "a")):
+            view.load(geometry, key)
+            view.apply(np.tile([0, 0, 0, 1, 0, 0, 0], (len(geometry.body_names), 1)))
+            assert len([n for n in shown() if "/g" in n]) == len(geometry.geoms)
+            assert not shown() & seen, f"names of an earlier scene re-created: {sorted(shown() & seen)}"
+            seen |= shown()
+        same = shown()
+        view.load(a, "a")  # the same scene again: kept as it is
+        assert shown() == same
+        view.clear()
+        assert not shown()
+    finally:
+        server.stop()

@@ -1,0 +1,216 @@
+"""What a newcomer meets in the browser studio: switching scenes and robots, forking a carry, notifications, uploads.
+
+Each test drives Debian's headless Chromium through Playwright against an in-process :class:`StudioApp` and
+asserts on what the page (or the browser's own scene tree) shows. Screenshots go to the test's temporary
+directory (printed at the end).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import browser_support as ui
+from browser_support import THROTTLE_RAF
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.timeout(900)]
+
+#: Every scene node the browser holds, read from the viewer's own scene tree (found through React's fibers
+#: from the page's DOM): type, colour, vertex count, visibility and the pose it draws the node at.
+CLIENT_SCENE = """() => {
+  for (const el of [document.querySelector('canvas'), ...document.querySelectorAll('div')]) {
+    if (!el) continue;
+    const key = Object.keys(el).find((k) => k.startsWith('__reactFiber$'));
+    if (!key) continue;
+    for (let f = el[key]; f; f = f.return) {
+      const v = f.memoizedProps && f.memoizedProps.value;
+      if (!(v && v.useSceneTree && v.useSceneTree.getAll && v.mutable)) continue;
+      const poses = v.mutable.current.nodePoseData;
+      return Object.entries(v.useSceneTree.getAll()).filter(([, n]) => n && n.message).map(([name, n]) => {
+        const p = n.message.props || {};
+        const pose = poses[name] || {};
+        return {name, type: n.message.type, color: p.color ? Array.from(p.color) : null,
+                vertices: p.vertices ? p.vertices.length : 0,
+                position: Array.from(pose.position || n.position || [0, 0, 0]),
+                wxyz: Array.from(pose.wxyz || n.wxyz || [1, 0, 0, 0]),
+                visible: n.effectiveVisibility ?? n.visibility ?? true};
+      });
+    }
+  }
+  return null;
+}"""
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return _quat_mul(_quat_mul(q, np.r_[0.0, v]), q * np.array([1, -1, -1, -1]))[1:]
+
+
+def drawn(nodes: list[dict]) -> list[tuple[tuple, np.ndarray, np.ndarray]]:
+    """What the browser draws, whatever the nodes are called: (kind, world position, world wxyz) of every
+    visible node, its world pose composed along its ancestors' poses (the scene root's own axis change left out,
+    as it is the same for every tab)."""
+    by_name = {n["name"]: n for n in nodes}
+    out = []
+    for n in nodes:
+        if not n["name"] or not n["visible"]:
+            continue
+        chain, name = [], n["name"]
+        while name:
+            chain.append(by_name.get(name))
+            name = name.rsplit("/", 1)[0]
+        if any(c is None or not c["visible"] for c in chain):
+            continue
+        pos, quat = np.zeros(3), np.array([1.0, 0, 0, 0])
+        for c in reversed(chain):  # the root's child first
+            q = np.asarray(c["wxyz"], float)
+            pos = pos + _rotate(quat, np.asarray(c["position"], float))
+            quat = _quat_mul(quat, q / np.linalg.norm(q))
+        kind = (n["type"], tuple(n["color"] or ()), n["vertices"])
+        out.append((kind, pos, quat))
+    return out
+
+
+def scene_difference(a: list[dict], b: list[dict], metres: float = 0.01, degrees: float = 3.0) -> list[str]:
+    """What one page draws that the other does not (kind and pose matched within ``metres``/``degrees``)."""
+    left, right = drawn(a), drawn(b)
+    unmatched_b = list(range(len(right)))
+    missing = []
+    for kind, pos, quat in left:
+        hit = None
+        for j in unmatched_b:
+            k2, p2, q2 = right[j]
+            angle = np.degrees(2 * np.arccos(min(1.0, abs(float(np.dot(quat, q2))))))
+            if k2 == kind and np.linalg.norm(pos - p2) <= metres and angle <= degrees:
+                hit = j
+                break
+        if hit is None:
+            missing.append(f"switched tab only: {kind[0]} {kind[1]} ({kind[2]} floats) at {np.round(pos, 3)}")
+        else:
+            unmatched_b.remove(hit)
+    missing += [
+        f"fresh tab only: {right[j][0][0]} {right[j][0][1]} at {np.round(right[j][1], 3)}"
+        for j in unmatched_b
+    ]
+    return missing
+
+
+def image_difference(a: Path, b: Path, box=(0, 200, 690, 720)) -> float:
+    """Fraction of the 3D view's pixels (left of the control panel, below the notifications) that differ."""
+    from PIL import Image
+
+    x = np.asarray(Image.open(a).convert("RGB").crop(box), dtype=np.int16)
+    y = np.asarray(Image.open(b).convert("RGB").crop(box), dtype=np.int16)
+    return float((np.abs(x - y).max(axis=2) > 48).mean())
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory):
+    d = tmp_path_factory.mktemp("screenshots")
+    yield d
+    print(f"\nscreenshots: {d}")
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory):
+    with ui.running_studio(tmp_path_factory.mktemp("studio") / "data") as app:
+        yield app
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = ui.launch(p)
+        yield b
+        b.close()
+
+
+def new_page(browser, studio, viewport=(1100, 720)):
+    """One more browser tab on the studio, once its teleop session is ready (the tab the app opened for it)."""
+    before = set(studio.tabs)
+    pg = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+    pg.add_init_script(THROTTLE_RAF)
+    pg.goto(studio.url)
+    pg.get_by_text("ready. Drag the gizmo").first.wait_for(timeout=120_000)
+    (client_id,) = set(studio.tabs) - before
+    return pg, studio.tabs[client_id]
+
+
+def _ready(tab, scene: str, robot: str) -> bool:
+    info = tab.teleop.info
+    return (
+        info is not None
+        and (info.scene, info.robot) == (scene, robot)
+        and "ready" in tab.teleop.status.content
+        and not tab.actions
+    )
+
+
+def test_switching_scenes_and_robots_leaves_nothing_of_the_previous_scene(studio, browser, shots):
+    """Every robot of every scene, picked by clicks on the Teleop dropdowns, then back to the first scene: the
+    browser's scene tree and picture match a tab opened fresh on that scene (no stale pedestal, no second
+    tabletop, every cube and zone where it is)."""
+    page, tab = new_page(browser, studio)
+    state = lambda: ui.teleop_state(tab)  # noqa: E731
+    steps = [
+        ("Robot", "panda", "pick_place"),
+        ("Robot", "hand", "pick_place"),
+        ("Robot", "sawyer", "pick_place"),
+        ("Scene", "push", None),
+        ("Robot", "panda", "push"),
+        ("Robot", "hand", "push"),
+        ("Scene", "metaworld", None),
+        ("Scene", "pick_place", None),
+    ]
+    robot = "sawyer"
+    for box, value, scene in steps:
+        if box == "Scene":
+            scene = value
+            robot = "sawyer" if value == "metaworld" else robot
+        else:
+            robot = value
+        want = (scene, robot)
+        ui.choose(page, box, value, lambda w=want: _ready(tab, *w), f"the {want} session", state, timeout=120)
+        if scene == "metaworld":
+            ui.shot(page, shots / "switch-metaworld.png")
+    assert tab.teleop.task.value == "pick_place/cube->red" and int(tab.teleop.seed.value) == 0
+    fresh, fresh_tab = new_page(browser, studio)
+    assert (fresh_tab.teleop.info.scene, fresh_tab.teleop.info.robot) == ("pick_place", "sawyer")
+
+    def same() -> list[str]:
+        return scene_difference(page.evaluate(CLIENT_SCENE), fresh.evaluate(CLIENT_SCENE)) or []
+
+    try:
+        ui.wait(
+            lambda: not same(),
+            60,
+            "the switched tab to draw what a fresh tab draws",
+            lambda: "\n".join(same()),
+        )
+    finally:
+        ui.shot(page, shots / "switched.png")
+        ui.shot(fresh, shots / "fresh.png")
+    changed = image_difference(shots / "switched.png", shots / "fresh.png")
+    assert changed < 0.01, (
+        f"{changed:.1%} of the 3D view differs from a fresh tab's (switched.png, fresh.png)"
+    )
+    fresh.close()
+    page.close()
