@@ -31,7 +31,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "write a stored episode's frames as an MP4 (any size and frame rate, its timing kept)",
     ),
     "export": ("studio.data.export_command", "export episodes as a LeRobot v3.0 dataset"),
-    "import": ("studio.data.import_command", "import trajectories from a LeRobot v3.0 dataset"),
+    "import": (
+        "studio.data.import_command",
+        "import trajectories or demonstration videos from a LeRobot v3.0 dataset",
+    ),
     "serve": ("studio.ui.serve", "start the browser studio and print its URL"),
     "quickstart": (
         "studio.quickstart",

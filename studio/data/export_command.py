@@ -40,4 +40,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    return lerobot_command.run_export(args, open_checked_store(args.data_dir))
+    return lerobot_command.run_export(args, lambda: open_checked_store(args.data_dir))

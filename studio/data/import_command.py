@@ -1,4 +1,5 @@
-"""The ``studio import FORMAT DIR`` command: bring trajectories from an ecosystem dataset (LeRobot v3.0) in."""
+"""The ``studio import FORMAT DIR`` command: bring an ecosystem dataset's (LeRobot v3.0) episodes in, as trajectories
+or as demonstration videos. The store is opened (and created) only once the dataset has been read and checked."""
 
 from __future__ import annotations
 
@@ -13,4 +14,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    return lerobot_command.run_import(args, open_checked_store(args.data_dir))
+    return lerobot_command.run_import(args, lambda: open_checked_store(args.data_dir))

@@ -172,10 +172,57 @@ def load_human_video(
         if decoded.times[-1] - (start or 0.0) < expected_end - max(0.5, 3.0 / rate):
             raise VideoImportError(f"{name}: the video is truncated or corrupt (frames stop early)")
 
-    keep = _thin(decoded.times, fps_cap, limits.min_frames)
-    src = decoded.frames[keep]
-    times = decoded.times[keep] - decoded.times[keep[0]]
-    frames = normalise_frames(src, size, fit)
+    return demonstration_from_frames(
+        decoded.frames,
+        decoded.times,
+        task,
+        size=size,
+        fit=fit,
+        fps_cap=fps_cap,
+        min_frames=limits.min_frames,
+        source_fps=float(info.fps),
+        extra={
+            "original_name": name,
+            "trim": None if trim is None else [start, end],
+            "source_codec": info.codec,
+        },
+    )
+
+
+def demonstration_from_frames(
+    frames: np.ndarray,
+    times: np.ndarray,
+    task: str,
+    *,
+    size: tuple[int, int] = (240, 320),
+    fit: str = "letterbox",
+    fps_cap: float | None = 15.0,
+    min_frames: int = ImportLimits.min_frames,
+    source_fps: float | None = None,
+    embodiment: str = "human",
+    source: str = "upload",
+    extra: dict | None = None,
+) -> Episode:
+    """Decoded frames ((F, h, w, 3) uint8 RGB at ``times`` s) as an (unsaved) expert :class:`Episode` of ``task``:
+    thinned to ``fps_cap``, normalised to ``size`` by ``fit``, with the nominal camera (see the module docstring).
+
+    The path of an uploaded video after decoding, and of a camera stream of a LeRobot dataset
+    (:mod:`studio.data.lerobot.reader`). ``extra`` is added to the episode's ``extra``.
+    """
+    if fit not in FIT_MODES:
+        raise VideoImportError(f"fit must be one of {FIT_MODES}, got {fit!r}")
+    if len(frames) < min_frames:
+        raise VideoImportError(f"only {len(frames)} frames; a demonstration needs at least {min_frames}")
+    try:
+        scene = scene_of_task(task)
+    except ValueError as e:
+        raise VideoImportError(str(e)) from e
+    times = np.asarray(times, dtype=np.float64)
+    rate = source_fps if source_fps else 30.0
+    keep = _thin(times, fps_cap, min_frames)
+    src = frames[keep]
+    times = times[keep] - times[keep[0]]
+    out = normalise_frames(src, size, fit)
     A = fit_affine(src.shape[1:3], size, fit)
     camera = CameraModel.from_fovy(NOMINAL_FOVY_DEG, src.shape[2], src.shape[1], np.eye(4)).with_pixel_affine(
         A, size[0], size[1]
@@ -184,29 +231,27 @@ def load_human_video(
     meta = EpisodeMeta(
         id=new_episode_id(),
         task=task,
-        scene=scene_of_task(task),
-        embodiment="human",
+        scene=scene,
+        embodiment=embodiment,
         role="expert",
-        source="upload",
+        source=source,
         seed=None,
         success=None,
         created=time.time(),
-        num_frames=len(frames),
+        num_frames=len(out),
         num_steps=0,
         height=size[0],
         width=size[1],
         fps=float(fps),
         extra={
-            "original_name": name,
-            "trim": None if trim is None else [start, end],
+            **(extra or {}),
             "source_size": [int(src.shape[1]), int(src.shape[2])],
-            "source_fps": float(info.fps),
-            "source_codec": info.codec,
+            "source_fps": float(source_fps or 0.0),
             "fit": fit,
             "camera_nominal": True,
         },
     )
-    return Episode(meta, camera, frames, np.asarray(times, dtype=np.float64))
+    return Episode(meta, camera, out, np.asarray(times, dtype=np.float64))
 
 
 def import_video(

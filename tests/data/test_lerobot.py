@@ -82,9 +82,7 @@ def test_round_trip_keeps_every_field(tmp_path, source):
         assert after.source == "import" and after.extra["original_source"] == before.source
         assert after.extra["original_id"] == before.id
         assert {
-            k: v
-            for k, v in after.extra.items()
-            if k not in ("original_id", "original_source", "lerobot_episode_index")
+            k: v for k, v in after.extra.items() if k not in ("original_id", "original_source", "lerobot")
         } == before.extra
         np.testing.assert_array_equal(b.camera.K, a.camera.K)
         np.testing.assert_array_equal(b.camera.T_world_cam, a.camera.T_world_cam)
@@ -106,7 +104,7 @@ def test_schema_details(tmp_path, source):
     assert info["robot_type"] == "panda,sawyer"
     video = info["features"][VIDEO_KEY]
     assert video["dtype"] == "video" and video["shape"] == [48, 64, 3]
-    assert video["info"]["video.codec"] == "h264" and video["info"]["video.pix_fmt"] == "yuv420p"
+    assert video["info"]["video.codec"] == "av1" and video["info"]["video.pix_fmt"] == "yuv420p"
     np.testing.assert_array_equal(video["info"]["camera.K"], store.load_camera(metas[0].id).K)
     eps = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
     assert [e["dataset_from_index"] for e in eps] == [0, 60, 105]
@@ -116,10 +114,48 @@ def test_schema_details(tmp_path, source):
     )
     stats = json.loads((root / "meta/stats.json").read_text())
     assert stats["index"]["max"] == [164] and stats["index"]["count"] == [165]
+    for feature in ("observation.state", "action", "observation.qpos", VIDEO_KEY):
+        assert set(stats[feature]) == {
+            "min",
+            "max",
+            "mean",
+            "std",
+            "count",
+            "q01",
+            "q10",
+            "q50",
+            "q90",
+            "q99",
+        }
+        lo, mid, hi = (np.asarray(stats[feature][q]) for q in ("q01", "q50", "q99"))
+        assert (lo <= mid).all() and (mid <= hi).all()
+    assert np.asarray(stats[VIDEO_KEY]["q50"]).shape == (3, 1, 1)
     import pandas as pd
 
     tasks = pd.read_parquet(root / "meta/tasks.parquet")
-    assert tasks.index.name == "task" and tasks.loc[T2, "task_index"] == 1
+    assert list(tasks.index) == [
+        "pick up the cube and place it in the red zone",
+        "pick up the bar and place it in the red zone",
+    ] and tasks["task_index"].tolist() == [0, 1]
+    assert [e["osvi/task"] for e in eps] == [T1, T2, T1]
+    assert eps[1]["tasks"] == ["pick up the bar and place it in the red zone"]
+    # Every observation.* feature is a policy input LeRobot can normalise: numbers, no flags.
+    features = info["features"]
+    observations = {k: f["dtype"] for k, f in features.items() if k.startswith("observation.")}
+    assert set(observations.values()) == {"float32", "video"}, observations
+    assert features["osvi.frame_rendered"]["dtype"] == "bool" and "observation.frame_rendered" not in features
+    assert {f["dtype"] for f in features.values()} <= {"float32", "int64", "bool", "video"}
+    data = pq.read_table(root / "data/chunk-000/file-000.parquet")
+    assert data.schema.field("observation.qpos").type.value_type == pa.float32()
+    qpos = store.load_arrays(metas[0].id)[2]["qpos"]
+    np.testing.assert_array_equal(eps[0]["osvi/exact/qpos"], qpos.ravel())  # float64, for the round trip
+    # Encoded as LeRobot encodes: AV1, a keyframe every 2 frames.
+    import av
+
+    with av.open(str(root / f"videos/{VIDEO_KEY}/chunk-000/file-000.mp4")) as container:
+        keys = [p.is_keyframe for p in container.demux(video=0) if p.size]
+        assert container.streams.video[0].codec_context.name in ("libdav1d", "av1")
+    assert len(keys) == 165 and sum(keys) >= 165 // 2
 
 
 def test_multiple_files_and_chunks(tmp_path, source):
@@ -222,5 +258,10 @@ def test_foreign_dataset_without_studio_features(tmp_path, source):
     (root / INFO_PATH).write_text(json.dumps(info))
     _rewrite_data(root, lambda t: t.drop(["observation.ee_pos_cam"]))
     assert validate_dataset(root) == []  # still a valid LeRobot dataset...
-    with pytest.raises(LeRobotError, match="lacks the per-step features"):  # ...but not one we can train from
+    with pytest.raises(LeRobotError, match="lacks the studio's per-step features"):  # ...not trajectories
+        import_lerobot(EpisodeStore(tmp_path / "b"), root, kind="trajectories")
+    with pytest.raises(LeRobotError, match="--task"):  # ...but its camera stream, once the task is named
         import_lerobot(EpisodeStore(tmp_path / "b"), root)
+    (demo,) = import_lerobot(EpisodeStore(tmp_path / "b"), root, task=T1, episodes=[0])
+    assert (demo.role, demo.embodiment, demo.source, demo.num_steps) == ("expert", "human", "import", 0)
+    assert demo.extra["camera_nominal"] and demo.extra["lerobot"]["episode_index"] == 0

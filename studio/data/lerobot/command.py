@@ -9,13 +9,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from studio.data.lerobot.reader import import_lerobot
-from studio.data.lerobot.schema import LeRobotError
+from studio.data.lerobot.reader import KINDS, read_lerobot, store_plan
+from studio.data.lerobot.schema import VIDEO_CODEC, VIDEO_CRF, VIDEO_GOP, LeRobotError
 from studio.data.lerobot.validate import validate_dataset
-from studio.data.lerobot.writer import export_lerobot
+from studio.data.lerobot.writer import CODECS, export_lerobot
 from studio.data.store import EpisodeStore
 
 
@@ -41,14 +41,27 @@ def add_export_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--role", choices=("expert", "agent"), default=None, help="only this role")
     parser.add_argument("--embodiment", default=None, help="only this embodiment (sawyer, panda)")
     parser.add_argument("--source", nargs="+", default=None, help="only these sources")
+    parser.add_argument(
+        "--codec",
+        choices=sorted(CODECS),
+        default=VIDEO_CODEC,
+        help="video encoder: libsvtav1 (AV1, LeRobot's default) or libx264 (H.264); "
+        f"both with a keyframe every {VIDEO_GOP} frames and CRF {VIDEO_CRF}, as LeRobot encodes",
+    )
 
 
-def run_export(args: argparse.Namespace, store: EpisodeStore) -> int:
+def run_export(args: argparse.Namespace, store_of: Callable[[], EpisodeStore]) -> int:
     try:
         report = export_lerobot(
-            store, args.out, tasks=args.tasks, role=args.role, embodiment=args.embodiment, source=args.source
+            store_of(),
+            args.out,
+            tasks=args.tasks,
+            role=args.role,
+            embodiment=args.embodiment,
+            source=args.source,
+            codec=args.codec,
         )
-    except LeRobotError as e:
+    except (LeRobotError, OSError) as e:
         print(f"studio export lerobot: {e}", file=sys.stderr)
         return 2
     problems = validate_dataset(args.out)
@@ -58,8 +71,45 @@ def run_export(args: argparse.Namespace, store: EpisodeStore) -> int:
     return 1 if problems else 0
 
 
+IMPORT_HELP = """\
+A LeRobot v3.0 dataset imports as one of two kinds (--as auto picks the first that fits):
+
+  trajectories    when it carries the studio's per-step features: observation.qpos,
+                  observation.ee_pos_world, observation.ee_pos_cam, observation.gripper_opening,
+                  observation.environment_state, osvi.gripper_cmd, osvi.time (a studio export has
+                  them, and comes back exactly). Its camera stream gives the frames; without the
+                  studio's camera columns the camera is a nominal one, flagged camera_nominal.
+  demonstrations  any dataset with a camera stream, a video or an image feature (--camera picks
+                  one): each episode's frames become an expert demonstration of the studio task
+                  named by --task, as an uploaded human video does (thinned to 15 fps,
+                  letterboxed to 240x320, a nominal camera, embodiment human unless --embodiment).
+
+Tasks: the dataset's task strings name studio tasks when they are a studio task name or its
+instruction ("pick up the bar and place it in the blue zone"); map others with --task-map.
+Nothing is stored when anything is wrong. Episodes already imported (same content) are skipped
+and listed.
+"""
+
+
 def add_import_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = ((parser.description or "") + "\n\n" + IMPORT_HELP).strip()
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("dir", help="LeRobot v3.0 dataset directory")
+    parser.add_argument(
+        "--as",
+        dest="kind",
+        choices=KINDS,
+        default="auto",
+        help="import as trajectories or demonstration videos (default: trajectories when the studio's "
+        "features are there)",
+    )
+    parser.add_argument(
+        "--task", default=None, help="the studio task the episodes show (required for demonstration videos)"
+    )
+    parser.add_argument("--camera", default=None, help="the video or image feature to take frames from")
+    parser.add_argument(
+        "--episodes", nargs="+", type=int, default=None, metavar="N", help="only these episode indices"
+    )
     parser.add_argument(
         "--task-map",
         nargs="+",
@@ -68,25 +118,38 @@ def add_import_arguments(parser: argparse.ArgumentParser) -> None:
         help="'DATASET TASK=scene/task' pairs or a JSON file {dataset task: studio task}",
     )
     parser.add_argument(
-        "--role", choices=("expert", "agent"), default=None, help="override the role (default: agent)"
+        "--role", choices=("expert", "agent"), default=None, help="override the role of trajectories"
     )
-    parser.add_argument("--embodiment", default=None, help="override the embodiment")
+    parser.add_argument(
+        "--embodiment", default=None, help="override the embodiment (demonstrations: default human)"
+    )
 
 
-def run_import(args: argparse.Namespace, store: EpisodeStore) -> int:
+def run_import(args: argparse.Namespace, store_of: Callable[[], EpisodeStore]) -> int:
+    """Read and check the dataset first; only then open (or create) the store and add the episodes."""
     from studio.sim.tasks import list_tasks
 
     try:
-        metas = import_lerobot(
-            store,
+        plan = read_lerobot(
             args.dir,
+            kind=args.kind,
+            task=args.task,
             task_map=parse_task_map(args.task_map),
             role=args.role,
             embodiment=args.embodiment,
             known_tasks=list_tasks(),
+            camera=args.camera,
+            episodes=args.episodes,
         )
-    except LeRobotError as e:
+        store = store_of()
+        metas, already = store_plan(store, plan)
+    except (LeRobotError, OSError, json.JSONDecodeError) as e:
         print(f"studio import lerobot: {e}", file=sys.stderr)
         return 2
-    print(f"imported {len(metas)} episodes from {args.dir}")
+    what = "trajectories" if plan.kind == "trajectories" else "demonstration videos"
+    print(f"imported {len(metas)} episodes from {args.dir} as {what}")
+    for m in metas:
+        print(f"  {m.id}: {m.task}, {m.role}, {m.embodiment}, {m.num_frames} frames")
+    if already:
+        print(f"skipped {len(already)} episodes already in the store: {', '.join(already)}")
     return 0

@@ -1,6 +1,8 @@
 """LeRobot v3.0 validation: check a dataset directory against the documented schema (without LeRobot).
 
-Also the parquet reading helpers the importer shares (``read_table``, ``as_matrix``).
+Accepts what LeRobot itself writes: ``meta/tasks.parquet`` with the task as a named or unnamed index
+(``__index_level_0__``) or a ``task`` column, and ``image`` features stored in the data parquet.
+Also the reading helpers the importer shares (``read_table``, ``as_matrix``, ``read_tasks``).
 """
 
 from __future__ import annotations
@@ -77,6 +79,32 @@ def as_matrix(col: pa.ChunkedArray) -> np.ndarray:
     return np.asarray(arr.to_numpy(zero_copy_only=False))
 
 
+def read_tasks(root: Path) -> list[str]:
+    """The task strings of ``meta/tasks.parquet`` in ``task_index`` order. Raises ``ValueError`` (with the
+    reason) when the file cannot be read or has no task strings and indices."""
+    import pandas as pd
+
+    try:
+        df = pd.read_parquet(root / TASKS_PATH)
+    except (OSError, ValueError) as e:
+        raise ValueError(f"cannot read {TASKS_PATH}: {e}") from None
+    if "task_index" not in df.columns:
+        raise ValueError(f"{TASKS_PATH} has no column 'task_index'")
+    if "task" in df.columns:
+        names = list(df["task"])
+    elif "__index_level_0__" in df.columns:
+        names = list(df["__index_level_0__"])
+    else:
+        names = list(df.index)
+    if not all(isinstance(t, str) for t in names):
+        raise ValueError(f"{TASKS_PATH} has no task strings (as its index or a 'task' column)")
+    indices = [int(i) for i in df["task_index"]]
+    if sorted(indices) != list(range(len(indices))):
+        raise ValueError(f"{TASKS_PATH}: task_index values are not 0..n-1")
+    by_index = dict(zip(indices, names))
+    return [by_index[i] for i in range(len(indices))]
+
+
 def validate_dataset(root: str | Path) -> list[str]:
     """Problems of a directory as a LeRobot v3.0 dataset (empty when it follows the documented schema)."""
     root = Path(root)
@@ -129,19 +157,12 @@ def validate_dataset(root: str | Path) -> list[str]:
 
     # tasks
     try:
-        import pandas as pd
-
-        tasks = pd.read_parquet(root / TASKS_PATH)
-    except (OSError, ValueError) as e:
-        return [f"cannot read {TASKS_PATH}: {e}"]
-    if tasks.index.name != "task" or "task_index" not in tasks.columns:
-        problems.append(f"{TASKS_PATH} must have index 'task' and column 'task_index'")
-        return problems
-    if sorted(tasks["task_index"].tolist()) != list(range(len(tasks))):
-        problems.append("task_index values are not 0..n-1")
+        tasks = read_tasks(root)
+    except ValueError as e:
+        return [str(e)]
     if len(tasks) != info["total_tasks"]:
         problems.append(f"total_tasks is {info['total_tasks']} but tasks.parquet has {len(tasks)}")
-    task_names = set(tasks.index)
+    task_names = set(tasks)
 
     # episodes
     ep_files = sorted((root / "meta/episodes").glob("chunk-*/file-*.parquet"))
@@ -178,16 +199,22 @@ def validate_dataset(root: str | Path) -> list[str]:
     if absent:
         return [*problems, f"missing data files {absent}"]
     data = read_table(paths)
-    columns = [k for k, ft in features.items() if ft["dtype"] not in ("video", "image")]
-    if sorted(data.column_names) != sorted(columns):
+    stored = [k for k, ft in features.items() if ft["dtype"] != "video"]
+    if sorted(data.column_names) != sorted(stored):
         problems.append(
-            f"data columns {sorted(data.column_names)} differ from the non-video features {sorted(columns)}"
+            f"data columns {sorted(data.column_names)} differ from the features stored in the data files "
+            f"(all but videos) {sorted(stored)}"
         )
         return problems
-    for name in columns:
+    for name in stored:
         ft = features[name]
         col = data.column(name)
-        if ft["shape"] == [1]:
+        if ft["dtype"] == "image":
+            if not (pa.types.is_struct(col.type) and col.type.get_field_index("bytes") >= 0):
+                problems.append(f"image column {name!r} is {col.type}, not a struct with 'bytes'")
+        elif ft["dtype"] == "string":
+            continue
+        elif ft["shape"] == [1]:
             if pa.types.is_list(col.type) or pa.types.is_fixed_size_list(col.type):
                 problems.append(f"column {name!r} of shape (1,) must be a scalar column")
             elif col.type != pa.from_numpy_dtype(np.dtype(ft["dtype"])):

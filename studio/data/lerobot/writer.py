@@ -1,12 +1,15 @@
 """LeRobot v3.0 export: write the store's episodes (those with per-step arrays) as a dataset.
 
 Owns writing the files of :mod:`studio.data.lerobot.schema`: data rows at the control rate, one MP4 frame
-per row, per-episode and aggregated statistics, and the studio's ``osvi/*`` episode columns.
+per row (encoded as LeRobot encodes: SVT-AV1, a keyframe every 2 frames, CRF 30), per-episode and aggregated
+statistics computed as LeRobot computes them (quantiles q01..q99 included), and the studio's ``osvi/*``
+episode columns.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -23,14 +26,22 @@ from studio.data.lerobot.schema import (
     CODEBASE_VERSION,
     DATA_PATH,
     EPISODES_PATH,
+    EXACT_PREFIX,
     INFO_PATH,
+    QUANTILE_KEYS,
+    QUANTILES,
     RENDERED,
     STATS_PATH,
     TASKS_PATH,
+    VIDEO_CODEC,
+    VIDEO_CRF,
+    VIDEO_GOP,
     VIDEO_KEY,
     VIDEO_PATH,
+    VIDEO_PRESET,
     LeRobotError,
     studio_features,
+    task_instruction,
 )
 from studio.data.store import EpisodeStore
 from studio.sim.camera import CameraModel
@@ -50,17 +61,24 @@ class ExportReport:
         return text
 
 
-class _VideoFile:
-    """One MP4 of back-to-back episodes at a constant frame rate."""
+#: The encoders ``codec`` may name, and their options besides the keyframe interval and quality.
+CODECS = {"libsvtav1": {"preset": str(VIDEO_PRESET)}, "libx264": {}}
 
-    def __init__(self, path: Path, fps: int, height: int, width: int, crf: int) -> None:
+
+class _VideoFile:
+    """One MP4 of back-to-back episodes at a constant frame rate, encoded with LeRobot's settings."""
+
+    def __init__(self, path: Path, fps: int, height: int, width: int, codec: str, crf: int) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
+        os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its configuration to stderr otherwise
         self.path = path
-        self.container = av.open(str(path), mode="w", format="mp4", options={"movflags": "+faststart"})
-        self.stream = self.container.add_stream("libx264", rate=Fraction(fps))
+        self.container = av.open(str(path), mode="w", format="mp4")
+        options = {"g": str(VIDEO_GOP), "crf": str(crf), **CODECS[codec]}
+        stream = self.container.add_stream(codec, rate=Fraction(fps), options=options)
+        assert isinstance(stream, av.VideoStream)
+        self.stream = stream
         self.stream.width, self.stream.height = width + width % 2, height + height % 2
         self.stream.pix_fmt = "yuv420p"
-        self.stream.options = {"crf": str(crf), "preset": "veryfast"}
         self.frames = 0
 
     def append(self, frames: np.ndarray) -> None:
@@ -86,32 +104,67 @@ def _next_file(chunk: int, file: int, chunks_size: int) -> tuple[int, int]:
     return (chunk + 1, 0) if file == chunks_size - 1 else (chunk, file + 1)
 
 
-def _stats(values: np.ndarray) -> dict:
-    v = values.astype(np.float64).reshape(len(values), -1)
-    return {
-        "min": v.min(0).tolist(),
-        "max": v.max(0).tolist(),
-        "mean": v.mean(0).tolist(),
-        "std": v.std(0).tolist(),
-        "count": [len(v)],
-    }
+def _quantile(hist: np.ndarray, edges: np.ndarray, target: float) -> float:
+    """One quantile from a histogram, interpolated within its bin (LeRobot's ``_compute_single_quantile``)."""
+    cumsum = np.cumsum(hist)
+    i = int(np.searchsorted(cumsum, target))
+    if i == 0:
+        return float(edges[0])
+    if i >= len(cumsum):
+        return float(edges[-1])
+    before = cumsum[i - 1]
+    inside = cumsum[i] - before
+    if inside == 0:
+        return float(edges[i])
+    return float(edges[i] + (target - before) / inside * (edges[i + 1] - edges[i]))
+
+
+def _vector_stats(v: np.ndarray, count: int) -> dict[str, np.ndarray]:
+    """Stats of (N, D) samples as LeRobot's ``get_feature_stats`` makes them: min, max, mean, std, count and
+    the quantiles of a 5000-bin histogram per dimension (every quantile = the mean below 2 samples)."""
+    out = {"min": v.min(0), "max": v.max(0), "mean": v.mean(0), "count": np.array([count])}
+    if len(v) < 2:
+        out["std"] = v.std(0)
+        out.update({k: out["mean"].copy() for k in QUANTILE_KEYS})
+        return out
+    out["std"] = np.sqrt(np.maximum(0.0, (v**2).mean(0) - out["mean"] ** 2))
+    for key in QUANTILE_KEYS:
+        out[key] = np.empty(v.shape[1])
+    for d in range(v.shape[1]):
+        edges = np.linspace(out["min"][d] - 1e-10, out["max"][d] + 1e-10, 5001)
+        hist, _ = np.histogram(v[:, d], bins=edges)
+        for key, q in zip(QUANTILE_KEYS, QUANTILES):
+            out[key][d] = _quantile(hist, edges, q * len(v))
+    return out
+
+
+def _stats(values: np.ndarray, dtype: str) -> dict:
+    """A per-step feature's stats over one episode, from the values as stored (``dtype``)."""
+    v = np.asarray(values).astype(dtype).astype(np.float64).reshape(len(values), -1)
+    return {k: a.tolist() for k, a in _vector_stats(v, len(v)).items()}
 
 
 def _image_stats(frames: np.ndarray) -> dict:
-    """Per-channel stats of frames scaled to [0, 1], shaped (3, 1, 1) as LeRobot stores image stats."""
-    x = frames.astype(np.float64) / 255.0
-    per = lambda a: [[[float(c)]] for c in a]  # noqa: E731
+    """Per-channel stats of a video feature as LeRobot samples them (evenly spaced frames, strided down when
+    300 px or larger), scaled to [0, 1] and shaped (3, 1, 1). The std is the true one: LeRobot 0.4.4 squares
+    uint8 pixels, which wraps, and stores 0."""
+    n = len(frames)
+    k = max(min(100, n), min(int(n**0.75), 10_000))
+    picked = frames[np.round(np.linspace(0, n - 1, k)).astype(int)]
+    h, w = picked.shape[1:3]
+    if max(h, w) >= 300:
+        step = int(w / 150) if w > h else int(h / 150)
+        picked = picked[:, ::step, ::step]
+    st = _vector_stats(picked.reshape(-1, 3).astype(np.float64), k)
     return {
-        "min": per(x.min(axis=(0, 1, 2))),
-        "max": per(x.max(axis=(0, 1, 2))),
-        "mean": per(x.mean(axis=(0, 1, 2))),
-        "std": per(x.std(axis=(0, 1, 2))),
-        "count": [len(frames)],
+        key: value.tolist() if key == "count" else (value / 255.0).reshape(3, 1, 1).tolist()
+        for key, value in st.items()
     }
 
 
 def _aggregate(stats: list[dict]) -> dict:
-    """Combine per-episode stats: min of mins, max of maxes, count-weighted mean, pooled std."""
+    """Combine per-episode stats as LeRobot's ``aggregate_stats`` does: min of mins, max of maxes,
+    count-weighted means and quantiles, pooled std."""
     out = {}
     for key in stats[0]:
         n = np.array([s[key]["count"][0] for s in stats], dtype=np.float64)
@@ -126,6 +179,10 @@ def _aggregate(stats: list[dict]) -> dict:
             "mean": total_mean.tolist(),
             "std": np.sqrt(total_var).tolist(),
             "count": [int(n.sum())],
+            **{
+                q: (w * np.array([s[key][q] for s in stats], dtype=np.float64)).sum(0).tolist()
+                for q in QUANTILE_KEYS
+            },
         }
     return out
 
@@ -185,17 +242,23 @@ def export_lerobot(
     robot_type: str | None = None,
     chunks_size: int = 1000,
     data_files_size_in_mb: int = 100,
-    video_files_size_in_mb: int = 500,
-    crf: int = 18,
+    video_files_size_in_mb: int = 200,
+    codec: str = VIDEO_CODEC,
+    crf: int = VIDEO_CRF,
 ) -> ExportReport:
     """Write the selected episodes (those with per-step arrays) as a LeRobot v3.0 dataset in ``out``.
 
-    ``out`` must not exist or be empty. All exported episodes must share control rate, frame size,
-    joint count and object count (LeRobot features have one shape); filter by ``embodiment`` otherwise.
+    ``out`` must not exist or be an empty directory. All exported episodes must share control rate, frame
+    size, joint count and object count (LeRobot features have one shape); filter by ``embodiment``
+    otherwise. ``codec`` is ``libsvtav1`` (AV1, LeRobot's default) or ``libx264`` (H.264).
     """
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise LeRobotError(f"{out} is a file; export into a new directory")
     if out.exists() and any(out.iterdir()):
         raise LeRobotError(f"{out} is not empty; export into a new directory")
+    if codec not in CODECS:
+        raise LeRobotError(f"codec must be one of {sorted(CODECS)}, got {codec!r}")
     if episode_ids is not None:
         metas = [store.get(i) for i in episode_ids]
     else:
@@ -213,7 +276,11 @@ def export_lerobot(
     fps = round(1.0 / dt)
     if abs(fps * dt - 1.0) > 1e-6:
         raise LeRobotError(f"control rate 1/{dt} s is not a whole number of frames per second")
-    task_names = list(dict.fromkeys(m.task for m in metas))
+    studio_tasks = list(dict.fromkeys(m.task for m in metas))
+    task_names = list(dict.fromkeys(task_instruction(t) for t in studio_tasks))
+    if len(task_names) != len(studio_tasks):
+        task_names = studio_tasks  # two studio tasks read alike: keep their names apart
+    instruction = dict(zip(studio_tasks, task_names))
     task_index = {t: i for i, t in enumerate(task_names)}
     cameras = [read_meta(store.episode_dir(m.id))[1] for m in metas]
     first_cam = cameras[0]
@@ -225,7 +292,7 @@ def export_lerobot(
 
     out.mkdir(parents=True, exist_ok=True)
     first = store.load(metas[0].id)
-    features = studio_features(first, fps, shared)
+    features = studio_features(first, fps, shared, codec)
     data_chunk = data_file = video_chunk = video_file = 0
     data_writer: pq.ParquetWriter | None = None
     data_bytes = 0.0
@@ -235,7 +302,7 @@ def export_lerobot(
     total = 0
     for ep_index, meta in enumerate(metas):
         ep = first if ep_index == 0 else store.load(meta.id)
-        rows = _episode_rows(ep, ep_index, total, task_index[meta.task], fps)
+        rows = _episode_rows(ep, ep_index, total, task_index[instruction[meta.task]], fps)
         columns = {k: _column(v, features[k]["dtype"]) for k, v in rows.items()}
         table = pa.table(columns)
         if data_writer is not None and data_bytes + table.nbytes / 2**20 > data_files_size_in_mb:
@@ -257,19 +324,19 @@ def export_lerobot(
             path = out / VIDEO_PATH.format(
                 video_key=VIDEO_KEY, chunk_index=video_chunk, file_index=video_file
             )
-            vfile = _VideoFile(path, fps, meta.height, meta.width, crf)
+            vfile = _VideoFile(path, fps, meta.height, meta.width, codec, crf)
         which, _ = _full_rate_frames(ep)
         from_ts = vfile.frames / fps
         vfile.append(ep.frames[which])
         to_ts = vfile.frames / fps
 
-        stats = {k: _stats(np.asarray(v)) for k, v in rows.items()}
-        stats[VIDEO_KEY] = _image_stats(ep.frames)
+        stats = {k: _stats(np.asarray(v), features[k]["dtype"]) for k, v in rows.items()}
+        stats[VIDEO_KEY] = _image_stats(ep.frames[which])
         all_stats.append(stats)
         cam = cameras[ep_index]
         row = {
             "episode_index": ep_index,
-            "tasks": [meta.task],
+            "tasks": [instruction[meta.task]],
             "length": meta.num_steps,
             "data/chunk_index": data_chunk,
             "data/file_index": data_file,
@@ -282,6 +349,10 @@ def export_lerobot(
             "meta/episodes/chunk_index": 0,
             "meta/episodes/file_index": 0,
             **_osvi_columns(meta, cam),
+            **{
+                EXACT_PREFIX + name: np.asarray(ep.arrays[name], np.float64).ravel().tolist()
+                for name in ARRAY_FEATURES.values()
+            },
         }
         for feat, st in stats.items():
             for name, value in st.items():
@@ -313,7 +384,7 @@ def export_lerobot(
         "features": features,
     }
     (out / INFO_PATH).write_text(json.dumps(info, indent=4))
-    return ExportReport(episodes=len(metas), frames=total, tasks=task_names, skipped=skipped)
+    return ExportReport(episodes=len(metas), frames=total, tasks=studio_tasks, skipped=skipped)
 
 
 def _check_uniform(store: EpisodeStore, metas: list[EpisodeMeta]) -> None:
@@ -343,6 +414,7 @@ def _check_uniform(store: EpisodeStore, metas: list[EpisodeMeta]) -> None:
 def _osvi_columns(meta: EpisodeMeta, cam: CameraModel) -> dict:
     return {
         "osvi/id": meta.id,
+        "osvi/task": meta.task,
         "osvi/scene": meta.scene,
         "osvi/embodiment": meta.embodiment,
         "osvi/role": meta.role,
