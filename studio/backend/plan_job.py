@@ -14,6 +14,10 @@ The result is written to ``<data-dir>/plans/<job>.npz`` (arrays do not belong in
 * ``latent_images``: (S, h, w, 3) uint8 decoded latent states (only with a decoder);
 * ``K``, ``T_world_cam``: the external camera.
 
+The result also carries the demonstration's score (:mod:`studio.eval.demo_score`: how far it is from the
+demonstrations the policy learnt from, against the policy's calibrated threshold), so that the UI can warn before
+a meaningless demonstration's plan is executed.
+
 Planning and decoding are :mod:`studio.eval` (:func:`~studio.eval.planners.load_planner`,
 :func:`~studio.eval.latents.decode_latents`, which finds a checkpoint's decoder by convention); this module is the
 job's handler and the file it writes.
@@ -23,13 +27,41 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
+import msgspec
 import numpy as np
 
 from studio.eval.latents import decode_latents, find_decoder
 
 PLANS_DIR = "plans"
+
+#: A checkpoint path or "oracle"; an episode id; a task name.
+PathText = Annotated[str, msgspec.Meta(min_length=1, max_length=4096)]
+Name = Annotated[str, msgspec.Meta(min_length=1, max_length=200)]
+SceneSeed = Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]
+
+
+class PlanJobSpec(msgspec.Struct, forbid_unknown_fields=True):
+    """What a ``plan`` job plans: ``checkpoint`` (path or ``"oracle"``) imitating the stored demonstration
+    ``expert_episode_id`` on ``task`` with scene ``seed``, for ``robot`` (the Panda; the Sawyer in Meta-World)."""
+
+    checkpoint: PathText
+    expert_episode_id: Name
+    task: Name
+    seed: SceneSeed
+    robot: Literal["panda", "sawyer"] = "panda"
+
+
+def parse_spec(spec: dict[str, Any]) -> PlanJobSpec:
+    """The spec as a :class:`PlanJobSpec`; ``ValueError`` naming what is missing or wrong."""
+    missing = [k for k in ("checkpoint", "expert_episode_id", "task", "seed") if k not in spec]
+    if missing:
+        raise ValueError(f"plan job spec lacks {missing}")
+    try:
+        return msgspec.convert(spec, PlanJobSpec)
+    except msgspec.ValidationError as e:
+        raise ValueError(f"invalid plan job spec: {e}") from None
 
 
 def expert_indices(n_frames: int, n: int = 10) -> np.ndarray:
@@ -50,34 +82,32 @@ def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
 
 
 def run_plan_job(ctx) -> dict[str, Any]:
-    """Spec: ``checkpoint`` (path or ``"oracle"``), ``expert_episode_id``, ``task``, ``seed``, ``robot``
-    (default ``"panda"``). Returns the plan file (relative to the data dir) and a summary."""
+    """Spec: :class:`PlanJobSpec`. Returns the plan file (relative to the data dir) and a summary, with the
+    demonstration's score (``demo_score``: :func:`studio.eval.demo_score.worker_score`) and the time it took."""
     import time
 
     from studio.data.store import EpisodeStore
+    from studio.eval.demo_score import worker_score
     from studio.eval.planners import load_planner, process_cached
     from studio.sim.env import make_env
     from studio.sim.tasks import get_task
 
-    spec = dict(ctx.spec)
-    missing = [k for k in ("checkpoint", "expert_episode_id", "task", "seed") if k not in spec]
-    if missing:
-        raise ValueError(f"plan job spec lacks {missing}")
+    parsed = parse_spec(dict(ctx.spec))
     if ctx.data_dir is None:
         raise ValueError("plan jobs need a worker started with --data-dir (the store with the demonstration)")
-    task = get_task(str(spec["task"]))
-    robot = str(spec.get("robot", "panda"))
-    checkpoint = str(spec["checkpoint"])
+    task = get_task(parsed.task)
+    robot = parsed.robot
+    checkpoint = parsed.checkpoint
     if checkpoint != "oracle" and not Path(checkpoint).is_file():
         raise ValueError(f"checkpoint {checkpoint} does not exist on worker {ctx.worker}")
     store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     ctx.progress(0, 3, message="resetting the scene")
     env = make_env(task.scene, robot)  # this job's own: its EGL context belongs to this thread
     try:
-        env.reset(task.name, int(spec["seed"]))
+        env.reset(task.name, parsed.seed)
         frame = env.render("external")
         cam = env.camera_model("external")
-        expert = store.load_frames(str(spec["expert_episode_id"]))
+        expert = store.load_frames(parsed.expert_episode_id)
         ctx.progress(1, 3, message="planning")
         planner = load_planner(checkpoint, env)
         if hasattr(planner, "clear_cache"):
@@ -112,6 +142,14 @@ def run_plan_job(ctx) -> dict[str, Any]:
         if images is not None:
             arrays["latent_images"] = images
             decoded = len(images)
+    t0 = time.perf_counter()
+    if checkpoint == "oracle":
+        demo_score: dict[str, Any] = {
+            "unavailable": "the oracle plans from the simulator, not the demonstration"
+        }
+    else:
+        demo_score = worker_score(planner.model, checkpoint, parsed.expert_episode_id, expert, store)
+    score_seconds = time.perf_counter() - t0
     ctx.raise_if_cancelled()
     rel = Path(PLANS_DIR) / f"{ctx.job}.npz"
     _write_npz(Path(ctx.data_dir) / rel, arrays)
@@ -123,4 +161,6 @@ def run_plan_job(ctx) -> dict[str, Any]:
         "decoder": None if checkpoint == "oracle" else (str(find_decoder(checkpoint) or "") or None),
         "gripper_closed": [bool(g > 0.5) for g in arrays["waypoints_world"][:, 3]],
         "guidance": guidance,
+        "demo_score": demo_score,
+        "demo_score_time_s": score_seconds,
     }

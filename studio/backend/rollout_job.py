@@ -1,17 +1,22 @@
 """The ``rollout`` job of a sim worker: one imitation rollout, streamed live to the bus and stored.
 
 A thin handler: the rollout itself is :func:`studio.eval.rollout.run_rollout`; this module turns the job's spec into
-its arguments, its events into job progress and body poses, paces it for watching, and stores the outcome.
+its arguments, its events into job progress and body poses, paces it for watching, and stores the outcome with
+the demonstration's score (:mod:`studio.eval.demo_score`), which the *Inspect* tab shows beside the plan.
 """
 
 from __future__ import annotations
 
 import time
+from typing import Annotated, Any, Literal
 
+import msgspec
 import numpy as np
 
+from studio.backend.plan_job import Name, PathText, SceneSeed
 from studio.backend.scene_state import pose_frame
 from studio.data.store import EpisodeStore
+from studio.eval.demo_score import worker_score
 from studio.eval.evaluation import register_checkpoint
 from studio.eval.latents import attach_latent_images
 from studio.eval.planners import load_planner, process_cached
@@ -20,24 +25,52 @@ from studio.sim.env import make_env
 from studio.sim.tasks import get_task
 
 
-def run_rollout_job(ctx) -> dict:
-    """The ``rollout`` job of a sim worker.
+class RolloutJobSpec(msgspec.Struct, forbid_unknown_fields=True):
+    """What a ``rollout`` job runs.
 
-    Spec: ``checkpoint`` (path or ``"oracle"``), ``expert_episode_id``, ``task``, ``seed``, ``replans``
-    (default 0), ``robot`` (default ``"panda"``), ``checkpoint_id`` (the catalog id stored with the rollout;
-    default: the file registered as ``<run-dir>/<name>``, see
-    :func:`studio.eval.evaluation.register_checkpoint`), ``speed`` (simulated seconds per wall-clock second,
-    default 1 = real time so viewers see it live; 0 = as fast as possible). Streams progress (planning, waypoint
-    i of 5, grasp correction, re-planning, outcome) and body poses at ≤ 30 Hz, stores the rollout and returns its
-    summary.
+    Attributes:
+        checkpoint: checkpoint path or ``"oracle"``.
+        expert_episode_id: the stored demonstration imitated.
+        task: the task's name; seed: the scene's seed.
+        replans: re-plans allowed within the episode after a failed attempt.
+        robot: the agent (default: the Panda; the Sawyer in Meta-World).
+        checkpoint_id: the catalog id stored with the rollout (default: the file registered as
+            ``<run-dir>/<name>``, see :func:`studio.eval.evaluation.register_checkpoint`).
+        speed: simulated seconds per wall-clock second (1 = real time, so viewers see it live; 0 = as fast as
+            possible).
     """
-    spec = dict(ctx.spec)
+
+    checkpoint: PathText
+    expert_episode_id: Name
+    task: Name
+    seed: SceneSeed
+    replans: Annotated[int, msgspec.Meta(ge=0, le=20)] = 0
+    robot: Literal["panda", "sawyer"] | None = None
+    checkpoint_id: Name | None = None
+    speed: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 1.0
+
+
+def parse_spec(spec: dict[str, Any]) -> RolloutJobSpec:
+    """The spec as a :class:`RolloutJobSpec`; ``ValueError`` naming what is missing or wrong."""
     missing = [k for k in ("checkpoint", "expert_episode_id", "task", "seed") if k not in spec]
     if missing:
         raise ValueError(f"rollout job spec lacks {missing}")
-    task = get_task(str(spec["task"]))
-    robot = str(spec.get("robot", "sawyer" if task.scene == "metaworld" else "panda"))
-    replans = int(spec.get("replans", 0))
+    try:
+        return msgspec.convert(spec, RolloutJobSpec)
+    except msgspec.ValidationError as e:
+        raise ValueError(f"invalid rollout job spec: {e}") from None
+
+
+def run_rollout_job(ctx) -> dict:
+    """The ``rollout`` job of a sim worker (spec: :class:`RolloutJobSpec`).
+
+    Streams progress (planning, waypoint i of 5, grasp correction, re-planning, outcome) and body poses at ≤ 30 Hz,
+    stores the rollout with the demonstration's score (``extra["demo_score"]``) and returns its summary.
+    """
+    spec = parse_spec(dict(ctx.spec))
+    task = get_task(spec.task)
+    robot = spec.robot or ("sawyer" if task.scene == "metaworld" else "panda")
+    replans = spec.replans
     if ctx.data_dir is None:
         raise ValueError(
             "rollout jobs need a worker started with --data-dir (the store with the demonstration)"
@@ -47,13 +80,11 @@ def run_rollout_job(ctx) -> dict:
     # thread cannot be made current in another, so a simulator shared across job threads fails to render.
     env = make_env(task.scene, robot)
     try:
-        planner = load_planner(str(spec["checkpoint"]), env)
+        planner = load_planner(spec.checkpoint, env)
         if hasattr(planner, "clear_cache"):
             planner.clear_cache()
-        expert_frames = store.load_frames(str(spec["expert_episode_id"]))
-        speed = float(spec.get("speed", 1.0))
-        if speed < 0:
-            raise ValueError(f"rollout job speed must be >= 0, got {speed}")
+        expert_frames = store.load_frames(spec.expert_episode_id)
+        speed = spec.speed
         total_ticks = [0]
         last_pose = [-1.0]
         seq = [0]
@@ -116,26 +147,31 @@ def run_rollout_job(ctx) -> dict:
             planner,
             expert_frames,
             task.name,
-            int(spec["seed"]),
+            spec.seed,
             replans=replans,
             on_event=on_event,
             on_tick=on_tick,
             should_stop=lambda: ctx.cancelled,
         )
         ctx.raise_if_cancelled()
-        checkpoint = str(spec["checkpoint"])
+        checkpoint = spec.checkpoint
+        demo_score: dict[str, Any] | None = None
         if checkpoint != "oracle":
             # Decoded here, where the model lives, so that viewers (the UI) never need torch.
             attach_latent_images(checkpoint, out.plans)
-        checkpoint_id = spec.get("checkpoint_id")
+            demo_score = worker_score(planner.model, checkpoint, spec.expert_episode_id, expert_frames, store)
+        checkpoint_id = spec.checkpoint_id
         if checkpoint != "oracle" and not checkpoint_id:
             checkpoint_id = register_checkpoint(store.root, checkpoint)
+        extra: dict[str, Any] = {"job": ctx.job, "checkpoint": checkpoint}
+        if demo_score is not None:
+            extra["demo_score"] = demo_score
         record = store_rollout(
             store,
             out,
-            expert_episode_id=str(spec["expert_episode_id"]),
+            expert_episode_id=spec.expert_episode_id,
             checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
-            extra={"job": ctx.job, "checkpoint": checkpoint},
+            extra=extra,
         )
         return {
             "rollout_id": record.id,
@@ -145,6 +181,7 @@ def run_rollout_job(ctx) -> dict:
             "planning_time_s": out.planning_time_s,
             "episode_id": record.episode_id,
             "stages": out.stages,
+            "demo_score": demo_score,
         }
     finally:
         env.close()
