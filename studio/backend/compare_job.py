@@ -10,30 +10,69 @@ more: nothing half-done passes for a result.
 
 from __future__ import annotations
 
+from typing import Annotated, Any, Literal
+
+import msgspec
+
 from studio.eval.compare import CompareRow, compare, task_list
 
+PathText = Annotated[str, msgspec.Meta(min_length=1, max_length=4096)]
+Name = Annotated[str, msgspec.Meta(min_length=1, max_length=200)]
 
-def run_compare_job(ctx) -> dict:
-    """The ``compare`` job of a sim worker.
 
-    Spec: ``a``, ``b`` (checkpoint paths or ``"oracle"``), ``tasks`` (a list of task names or one string, as
-    ``studio compare --tasks``: ``held-out`` by default), ``scene`` (for the split words; default
-    ``pick_place``), ``episodes`` (per task, default 10), ``seed`` (default 0), ``replan`` (default 0),
-    ``workers`` (default 1), ``robot``, ``label_a`` / ``label_b`` (names in the table), ``checkpoint_id_a`` /
-    ``checkpoint_id_b`` (catalog ids the rollouts are stored under; default: the files registered as ``studio
-    eval`` does). Returns the comparison (:meth:`studio.eval.compare.Comparison.to_dict`: ``compare_id``, the
-    labels, ``eval_ids``, ``totals``, ``rows`` in table order) with its Markdown table as ``markdown``.
+class CompareJobSpec(msgspec.Struct, forbid_unknown_fields=True):
+    """What a ``compare`` job runs (the options of ``studio compare``).
+
+    Attributes:
+        a, b: checkpoint paths or ``"oracle"``.
+        tasks: task names, or one string as ``studio compare --tasks`` takes it (``held-out``, ``train``,
+            ``all`` or comma-separated names).
+        scene: the scene the split words refer to.
+        episodes: episodes per task; seed: the evaluation seed; replan: re-plans allowed on failure.
+        workers: rollout processes; robot: the agent (default: the scene's).
+        label_a, label_b: names in the table; checkpoint_id_a, checkpoint_id_b: catalog ids the rollouts are
+            stored under (default: the files registered as ``studio eval`` does).
     """
-    spec = dict(ctx.spec)
+
+    a: PathText
+    b: PathText
+    tasks: Annotated[list[Name], msgspec.Meta(min_length=1, max_length=200)] | Name = "held-out"
+    scene: Name = "pick_place"
+    episodes: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 10
+    seed: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)] = 0
+    replan: Annotated[int, msgspec.Meta(ge=0, le=20)] = 0
+    workers: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
+    robot: Literal["panda", "sawyer"] | None = None
+    label_a: Name | None = None
+    label_b: Name | None = None
+    checkpoint_id_a: Name | None = None
+    checkpoint_id_b: Name | None = None
+
+
+def parse_spec(spec: dict[str, Any]) -> CompareJobSpec:
+    """The spec as a :class:`CompareJobSpec`; ``ValueError`` naming what is missing or wrong."""
     missing = [k for k in ("a", "b") if not spec.get(k)]
     if missing:
         raise ValueError(f"compare job spec lacks {missing}")
+    try:
+        return msgspec.convert(spec, CompareJobSpec)
+    except msgspec.ValidationError as e:
+        raise ValueError(f"invalid compare job spec: {e}") from None
+
+
+def run_compare_job(ctx) -> dict:
+    """The ``compare`` job of a sim worker (spec: :class:`CompareJobSpec`).
+
+    Returns the comparison (:meth:`studio.eval.compare.Comparison.to_dict`: ``compare_id``, the labels,
+    ``eval_ids``, ``totals``, ``rows`` in table order) with its Markdown table as ``markdown``.
+    """
+    spec = parse_spec(dict(ctx.spec))
     if ctx.data_dir is None:
         raise ValueError(
             "compare jobs need a worker started with --data-dir (the store with the demonstrations)"
         )
-    tasks = task_list(str(spec.get("scene", "pick_place")), spec.get("tasks", "held-out"))
-    episodes = int(spec.get("episodes", 10))
+    tasks = task_list(spec.scene, spec.tasks)
+    episodes = spec.episodes
     total = episodes * len(tasks)
     ctx.progress(0, total, message=f"starting: {total} episodes, each rolled out by A and by B")
 
@@ -43,18 +82,18 @@ def run_compare_job(ctx) -> dict:
 
     try:
         result = compare(
-            str(spec["a"]),
-            str(spec["b"]),
+            spec.a,
+            spec.b,
             tasks,
             episodes,
-            int(spec.get("seed", 0)),
-            replan=int(spec.get("replan", 0)),
-            workers=int(spec.get("workers", 1)),
+            spec.seed,
+            replan=spec.replan,
+            workers=spec.workers,
             data_dir=ctx.data_dir,
-            robot=spec.get("robot"),
-            label_a=spec.get("label_a"),
-            label_b=spec.get("label_b"),
-            checkpoint_ids=(spec.get("checkpoint_id_a"), spec.get("checkpoint_id_b")),
+            robot=spec.robot,
+            label_a=spec.label_a,
+            label_b=spec.label_b,
+            checkpoint_ids=(spec.checkpoint_id_a, spec.checkpoint_id_b),
             on_episode=on_episode,
             should_stop=lambda: ctx.cancelled,
         )

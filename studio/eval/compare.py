@@ -16,16 +16,22 @@ The table has a row per episode — task, index, scene seed, demonstration, A's 
 stage it failed at) and the difference (``A only``, ``B only``, ``both``, ``neither`` succeeded) — differing rows
 first, then the totals. :func:`pair_rollouts` builds the same rows from rollouts already in the catalog: any two
 evaluations that share (task, seed, demonstration) episodes can be compared without running anything.
+
+:func:`default_pair` is what the studio's *Compare* tab starts with for a scene: among the checkpoints of that
+scene, the scene's active policy (A) and the best other one (B), where *best* means the highest held-out success
+recorded with the policy (:func:`recorded_held_out`: its ``NAME.json``), then — for checkpoints that record none,
+such as a run's — the newest file.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 import uuid
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -234,6 +240,56 @@ def pair_rollouts(a: Iterable[RolloutRecord], b: Iterable[RolloutRecord]) -> lis
 def compare_stored(catalog, eval_a: str, eval_b: str) -> list[CompareRow]:
     """The ordered rows of two stored evaluations' shared episodes."""
     return order_rows(pair_rollouts(catalog.rollouts(eval_id=eval_a), catalog.rollouts(eval_id=eval_b)))
+
+
+# ---------------------------------------------------------------------------------------------- default choice
+@dataclass(frozen=True)
+class Candidate:
+    """A checkpoint the comparison may run, as :func:`default_pair` ranks it."""
+
+    id: str
+    held_out: float | None = None  # the held-out success recorded with it (a fraction), if any
+    created: float = 0.0  # when its file was written (seconds since the epoch)
+    oracle: bool = False
+
+
+_PERCENT = re.compile(r"(\d+(?:\.\d+)?)\s*%")
+
+
+def recorded_held_out(about: Mapping) -> float | None:
+    """The held-out success a policy's ``NAME.json`` records, as a fraction: its ``held_out_success`` when it has
+    one (a number in [0, 1]), else the first percentage of its ``summary`` (every shipped summary leads with its
+    held-out success); None when it records neither."""
+    value = about.get("held_out_success")
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value <= 1.0:
+        return float(value)
+    summary = about.get("summary")
+    found = _PERCENT.search(summary) if isinstance(summary, str) else None
+    if found is None:
+        return None
+    share = float(found.group(1)) / 100.0
+    return share if 0.0 <= share <= 1.0 else None
+
+
+def rank_candidates(candidates: Iterable[Candidate]) -> list[Candidate]:
+    """Best first: recorded held-out success (highest first), then checkpoints that record none (newest first),
+    the oracle last (the execution ceiling, not a model)."""
+    return sorted(
+        candidates,
+        key=lambda c: (c.oracle, c.held_out is None, -(c.held_out or 0.0), -c.created, c.id),
+    )
+
+
+def default_pair(candidates: Sequence[Candidate], active: str | None = None) -> tuple[str, str]:
+    """The ids of A and B a comparison of these candidates starts with: A the ``active`` policy when it is among
+    them (else the best), B the best other one (see :func:`rank_candidates`). With a single candidate, both."""
+    ranked = rank_candidates(candidates)
+    if not ranked:
+        raise ValueError("no checkpoint to compare")
+    ids = [c.id for c in ranked]
+    a = active if active in ids else ids[0]
+    others = [i for i in ids if i != a]
+    return a, (others[0] if others else a)
 
 
 # ---------------------------------------------------------------------------------------------- running

@@ -9,13 +9,22 @@ without running anything.
 *Open* plays the two rollouts of one seed on ONE timeline: the camera frames of A and B at the same control step
 side by side, the scene with the poses of A (or B: *Scene shows*), both end-effector paths in their colours with a
 sphere where each gripper is at that step, and what each rollout was doing then. The timeline spans the longer
-rollout; the shorter holds its last frame.
+rollout; the shorter holds its last frame. *Enlarge* shows the two camera views large, in a modal window that
+follows the timeline.
+
+Checkpoints A and B offer only what may plan the chosen scene (checkpoints trained on it, read from their files
+without torch, and the oracle); a fresh tab, or a change of scene, starts from the scene's active policy (A) and the
+best other one (B, :func:`studio.eval.compare.default_pair`). Tasks that have no demonstration in the store get one
+first: *Start* makes a scripted demonstration of each on a sim worker (the ``expert`` job Imitate's *Make a
+scripted demonstration* runs), says so in the progress line, and starts the comparison once they are stored.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,16 +32,23 @@ import numpy as np
 from studio.backend.replay import EpisodeReplay
 from studio.data.catalog import RolloutRecord
 from studio.eval.compare import (
+    Candidate,
     CompareRow,
     compare_stored,
+    default_pair,
+    rank_candidates,
+    recorded_held_out,
     render_markdown,
     stage_at,
     stored_evaluations,
+    task_list,
     totals,
     totals_line,
 )
+from studio.eval.evaluation import default_expert_embodiments
 from studio.sim.tasks import list_tasks
-from studio.ui.images import filmstrip
+from studio.ui.images import ENLARGED_HEIGHT, filmstrip, open_enlarged
+from studio.ui.runs import Checkpoint, RunRegistry, SceneMismatch
 from studio.ui.timeline import Timeline
 
 HINT = """Run two checkpoints on the **same** seeded scenes and demonstrations and see where they differ.
@@ -47,6 +63,52 @@ A_RGB = (40, 110, 235)
 B_RGB = (225, 50, 170)
 #: Seconds between re-reads of the checkpoint list (run directories on disk).
 CHOICES_EVERY_S = 5.0
+#: Seeds a missing scripted demonstration is tried with before the comparison gives up on it.
+SCRIPTED_SEEDS = (2000, 2001, 2002)
+
+
+def candidate(ck: Checkpoint) -> Candidate:
+    """How :func:`~studio.eval.compare.default_pair` sees a checkpoint: the held-out success its ``NAME.json``
+    records (a shipped policy's), and when its file was written."""
+    if ck.is_oracle:
+        return Candidate(ck.id, oracle=True)
+    try:
+        about = json.loads(Path(ck.path).with_suffix(".json").read_text())
+    except (OSError, ValueError):
+        about = {}
+    try:
+        created = os.stat(ck.path).st_mtime
+    except OSError:
+        created = 0.0
+    return Candidate(ck.id, recorded_held_out(about) if isinstance(about, dict) else None, created)
+
+
+def scene_checkpoints(runs: RunRegistry, scene: str) -> list[Checkpoint]:
+    """The checkpoints that may plan ``scene``'s tasks (trained on it, and the oracle), best first."""
+    cks = {c.id: c for c in runs.checkpoints() if c.plans(scene)}
+    return [cks[c.id] for c in rank_candidates(candidate(ck) for ck in cks.values())]
+
+
+def default_checkpoints(runs: RunRegistry, scene: str) -> tuple[str, str]:
+    """The ids of A and B a comparison on ``scene`` starts with: the scene's active policy and the best other
+    checkpoint of the scene (:func:`studio.eval.compare.default_pair`)."""
+    try:
+        active: str | None = runs.active(scene).id
+    except SceneMismatch:
+        active = None  # the choice for this scene is refused: it is not offered either
+    return default_pair([candidate(c) for c in scene_checkpoints(runs, scene)], active)
+
+
+@dataclass
+class ScriptedDemos:
+    """Scripted demonstrations being made for tasks that have none, before the comparison ``spec`` starts."""
+
+    spec: dict
+    labels: tuple[str, str]
+    tasks: list[str]
+    jobs: dict[str, object] = field(default_factory=dict)  # task -> its expert job
+    tries: dict[str, int] = field(default_factory=dict)  # task -> seeds tried
+    done: set[str] = field(default_factory=set)
 
 
 def task_choices(scene: str) -> tuple[str, ...]:
@@ -122,9 +184,15 @@ class ComparePanel:
         self._filled = False
         gui = tab.client.gui
         gui.add_markdown(HINT)
-        self.ck_a = gui.add_dropdown("Checkpoint A", ("oracle",))
-        self.ck_b = gui.add_dropdown("Checkpoint B", ("oracle",))
+        self.making: ScriptedDemos | None = None
+        self._pair_scene: str | None = None  # the scene A and B were last chosen for
         self.scene = gui.add_dropdown("Scene", SCENES, initial_value="pick_place")
+        self.ck_a = gui.add_dropdown(
+            "Checkpoint A", ("oracle",), hint="checkpoints of the chosen scene, best first"
+        )
+        self.ck_b = gui.add_dropdown(
+            "Checkpoint B", ("oracle",), hint="checkpoints of the chosen scene, best first"
+        )
         self.tasks = gui.add_dropdown("Tasks", task_choices("pick_place"), initial_value="held-out")
         self.episodes = gui.add_number("Episodes per task", initial_value=5, min=1, max=500, step=1)
         self.seed = gui.add_number(
@@ -146,11 +214,15 @@ class ComparePanel:
         self.info = gui.add_markdown("")
         self.image = gui.add_image(np.full((120, 320, 3), 255, np.uint8), label="Camera: A (left) · B (right)",
                                    visible=False)  # fmt: skip
+        self.enlarge = gui.add_button("Enlarge", icon="arrows-maximize", visible=False,
+                                      hint="A's and B's camera views large; they follow the timeline")  # fmt: skip
+        self._enlarged: list = []  # the open Enlarge modal's image, updated as the timeline moves
         self.timeline = Timeline(gui, "Step", self._show_step, fps=30.0)
         self.step_info = gui.add_markdown("")
         with gui.add_folder("Per-seed table"):
             self.table = gui.add_markdown("")
-        self.scene.on_update(lambda _: self._fill_tasks())
+        self.scene.on_update(lambda _: (self._fill_tasks(), self._fill_checkpoints()))
+        self.enlarge.on_click(lambda _: tab.run(self.open_enlarged, "enlarging the camera views"))
         self.buttons.on_click(self._on_button)
         self.stored_button.on_click(lambda _: tab.run(self.compare_stored, "comparing stored rollouts"))
         self.open_button.on_click(lambda _: tab.run(self.open_selected, "opening the compared rollouts"))
@@ -164,15 +236,17 @@ class ComparePanel:
             self.tasks.value = "held-out"
 
     def _fill_checkpoints(self) -> None:
-        ids = tuple(c.id for c in self.app.runs.checkpoints())
-        first = not self._filled
-        self._filled = True
+        scene = self.scene.value
+        ids = tuple(c.id for c in scene_checkpoints(self.app.runs, scene))
+        fresh = self._pair_scene != scene  # a new tab, or another scene: start from the scene's defaults
+        self._pair_scene = scene
+        defaults = default_checkpoints(self.app.runs, scene)
         for k, dd in enumerate((self.ck_a, self.ck_b)):
             if dd.options != ids:
-                keep = dd.value
                 dd.options = ids
-                # A: the first (the active shipped policy); B: the next one, so a fresh tab compares two policies.
-                dd.value = keep if keep in ids and not first else ids[min(k, len(ids) - 1)]
+            value = defaults[k] if fresh or dd.value not in ids else dd.value
+            if dd.value != value:
+                dd.value = value
 
     def _fill_stored(self) -> None:
         before = [self._stored.get(dd.value) for dd in (self.eval_a, self.eval_b)]
@@ -192,28 +266,117 @@ class ComparePanel:
                 dd.value = value
 
     def _on_button(self, event) -> None:
-        if event.target.value == "Start":
+        if event.target.value == "Start" and self.making is not None:
+            self.tab.notify(
+                "Comparison", "scripted demonstrations are being made for it; it starts after them"
+            )
+        elif event.target.value == "Start":
             self.tab.run(self.start, "starting the comparison")
         else:
             self.tab.run(self.cancel, "cancelling the comparison")
 
     # ------------------------------------------------------------------ actions
     def start(self):
+        scene = self.scene.value
         choices = {c.id: c for c in self.app.runs.checkpoints()}
         a, b = choices.get(self.ck_a.value), choices.get(self.ck_b.value)
         if a is None or b is None:
             raise ValueError("choose checkpoints A and B")
         for ck in (a, b):
+            if not ck.plans(scene):
+                raise ValueError(
+                    f"`{ck.id}` was trained on {ck.scene or 'no one scene'}'s tasks, not on {scene}'s"
+                )
+        for ck in (a, b):
             self.app.runs.register_checkpoint(self.app.store.catalog, ck)  # the stored rollouts refer to it
         spec = {"a": a.path, "b": b.path, "label_a": a.id, "label_b": b.id,
                 "checkpoint_id_a": None if a.is_oracle else a.id, "checkpoint_id_b": None if b.is_oracle else b.id,
-                "scene": self.scene.value, "tasks": self.tasks.value, "episodes": int(self.episodes.value),
+                "scene": scene, "tasks": self.tasks.value, "episodes": int(self.episodes.value),
                 "seed": int(self.seed.value), "replan": int(self.replans.value)}  # fmt: skip
+        missing = self.tasks_without_demonstrations(scene, task_list(scene, self.tasks.value))
+        if missing:
+            self.making = ScriptedDemos(spec, (a.id, b.id), missing)
+            for task in missing:
+                self._make_scripted(task)
+            self._show_making()
+            return None
+        return self._submit(spec, (a.id, b.id))
+
+    def tasks_without_demonstrations(self, scene: str, tasks: list[str]) -> list[str]:
+        """Those of ``tasks`` the store has no demonstration of by the embodiments the comparison imitates."""
+        who = list(default_expert_embodiments(scene))
+        return [
+            t for t in tasks if not self.app.store.episodes(task=t, role="expert", embodiment=who, limit=1)
+        ]
+
+    def _make_scripted(self, task: str) -> None:
+        making = self.making
+        assert making is not None
+        tried = making.tries.get(task, 0)
+        making.tries[task] = tried + 1
+        making.jobs[task] = self.app.jobs.submit("expert", {"task": task, "seed": SCRIPTED_SEEDS[tried]},
+                                                 started_by=self.tab.client.client_id)  # fmt: skip
+
+    def _show_making(self) -> None:
+        making = self.making
+        if making is None:
+            return
+        names = ", ".join(f"`{t}`" for t in making.tasks)
+        text = (
+            f"No demonstration of {names} is stored: making a scripted one of each on a sim worker (the `expert` "
+            f"job of Imitate's *Make a scripted demonstration*), {len(making.done)} of {len(making.tasks)} "
+            "stored; the comparison starts after them…"
+        )
+        if self._shown.get("status") != text:
+            self._shown["status"] = text
+            self.status.content = text
+
+    def _refresh_making(self) -> None:
+        making = self.making
+        if making is None:
+            return
+        for task, job in list(making.jobs.items()):
+            if task in making.done or not job.terminal or (job.state == "succeeded" and job.result is None):
+                continue
+            if job.state == "succeeded":
+                making.done.add(task)
+                self.app.dataset_changed()
+            elif job.state == "failed" and making.tries[task] < len(SCRIPTED_SEEDS):
+                self._make_scripted(task)  # the scripted expert failed on that seed: another one
+            else:
+                self.making = None
+                reason = job.status.reason if job.status is not None else job.state
+                self.status.content = (
+                    f"No comparison: the scripted demonstration of `{task}` {job.state}: {reason}"
+                )
+                if job.state == "failed":
+                    self.tab.notify(
+                        "Comparison not started", f"no demonstration of {task}: {reason}", error=True
+                    )
+                return
+        self._show_making()
+        if len(making.done) == len(making.tasks):
+            self.making = None
+            self._submit(making.spec, making.labels, made=len(making.tasks))
+
+    def _submit(self, spec: dict, labels: tuple[str, str], made: int = 0):
         self.job = self.app.jobs.submit("compare", spec, started_by=self.tab.client.client_id)
-        self.status.content = f"Comparison `{self.job.job}` submitted: **{a.id}** (A) against **{b.id}** (B)…"
+        note = f" with the {made} scripted demonstration(s) just made" if made else ""
+        self.status.content = (
+            f"Comparison `{self.job.job}` submitted{note}: **{labels[0]}** (A) against **{labels[1]}** (B)…"
+        )
+        self._shown["status"] = self.status.content
         return self.job
 
     def cancel(self) -> None:
+        making, self.making = self.making, None
+        if making is not None:
+            for job in making.jobs.values():
+                if not job.terminal:
+                    self.app.jobs.cancel(job.job)
+            self.status.content = (
+                "Cancelled before the comparison started (scripted demonstrations stored stay)."
+            )
         if self.job is not None and not self.job.terminal:
             self.app.jobs.cancel(self.job.job)
 
@@ -278,6 +441,7 @@ class ComparePanel:
             f"Paths: A blue, B magenta; spheres: each gripper at this step."
         )
         self.image.visible = True
+        self.enlarge.visible = True
         dt = meta.control_dt or 0.02
         self.timeline.reset(max(a.steps, b.steps), fps=min(30.0, 1.0 / max(dt, 1e-3)))
 
@@ -290,6 +454,8 @@ class ComparePanel:
         da, db = a.describe(step), b.describe(step)
         self.image.image = filmstrip(np.stack([a.frame_at(sa), b.frame_at(sb)]), cols=2, height=150,
                                      labels=[f"A: {a.short(step)}", f"B: {b.short(step)}"])  # fmt: skip
+        if self._enlarged:
+            self._enlarged[0].image = self.enlarged_views(step)
         if self.tab.token == self._token:
             shown = a if self.shows.value == "A" else b
             self.tab.push_poses(self._token, shown.replay.poses_at(step))
@@ -302,6 +468,23 @@ class ComparePanel:
             f"The scene shows {self.shows.value}."
         )
 
+    def enlarged_views(self, step: int) -> np.ndarray:
+        """A's and B's camera frames at ``step``, side by side and large (what *Enlarge* shows)."""
+        assert self.sides is not None
+        a, b = self.sides
+        frames = np.stack([a.frame_at(min(step, a.steps - 1)), b.frame_at(min(step, b.steps - 1))])
+        return filmstrip(frames, cols=2, height=2 * ENLARGED_HEIGHT, gap=8,
+                         labels=[f"A {a.label}: {a.short(step)}", f"B {b.label}: {b.short(step)}"])  # fmt: skip
+
+    def open_enlarged(self) -> None:
+        if self.sides is None:
+            raise ValueError("open a compared seed first")
+        step = int(self.timeline.slider.value)
+        self._enlarged = open_enlarged(
+            self.tab.client.gui, "Compare — camera views, A (left) and B (right)",
+            [("Step follows the timeline", self.enlarged_views(step))], on_close=self._enlarged.clear,
+        )  # fmt: skip
+
     # ------------------------------------------------------------------ refresh
     def refresh(self) -> None:
         now = time.monotonic()
@@ -311,6 +494,7 @@ class ComparePanel:
         if self.app.dataset_version != self._version:
             self._version = self.app.dataset_version
             self._fill_stored()
+        self._refresh_making()
         self._refresh_job()
 
     def _refresh_job(self) -> None:
