@@ -1,9 +1,20 @@
-"""Small image helpers for panels: filmstrips (a grid of frames in one image) and thumbnails."""
+"""Image helpers for panels: filmstrips (a grid of frames in one image), thumbnails, and the *Enlarge* modal.
+
+The side panel is narrow: its images are thumbnails. :func:`open_enlarged` shows a panel's images again, drawn
+large, in a modal window that spans most of the browser window (a person demoing reads them from across a room).
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+
 import cv2
 import numpy as np
+
+#: CSS that widens the modal it is placed in (viser's modals are a fixed 440 px otherwise).
+WIDE_MODAL_CSS = "<style>.mantine-Modal-content { --modal-size: min(96vw, 1600px) !important; }</style>"
+#: Height in pixels of each frame drawn in the Enlarge modal.
+ENLARGED_HEIGHT = 240
 
 
 def thumbnail(image: np.ndarray, height: int) -> np.ndarray:
@@ -54,3 +65,27 @@ def side_by_side(left: np.ndarray, right: np.ndarray, height: int = 120, gap: in
     out[:, : a.shape[1]] = a
     out[:, a.shape[1] + gap :] = b
     return out
+
+
+def open_enlarged(gui, title: str, images: Sequence[tuple[str, np.ndarray]],
+                  on_close: Callable[[], None] | None = None) -> list:  # fmt: skip
+    """A modal titled ``title`` showing ``images`` ((label, RGB image) pairs, drawn as large as the window
+    allows) with a *Close* button; returns the image handles (a caller may keep updating them while it is open)."""
+    if not images:
+        raise ValueError("nothing to enlarge yet")
+    handles = []
+    with gui.add_modal(title) as modal:
+        gui.add_html(WIDE_MODAL_CSS)
+        for label, image in images:
+            handles.append(
+                gui.add_image(np.asarray(image, np.uint8), label=label, format="jpeg", jpeg_quality=90)
+            )
+        close = gui.add_button("Close", icon="x")
+
+    def closed(_) -> None:
+        modal.close()
+        if on_close is not None:
+            on_close()
+
+    close.on_click(closed)
+    return handles

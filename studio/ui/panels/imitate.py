@@ -9,10 +9,17 @@ Re-planning continues the same episode inside the rollout (``Re-plans`` allowed)
 failure runs the same episode again with one more re-plan (seeded, so the first attempts repeat exactly
 and the new plan continues from where they failed). Every tab sees a running rollout and can watch it.
 
+What is shown is what runs: choosing a demonstration shows the frames of it the model will see (and clears a plan
+made from another one); *Execute* shows the frames of the demonstration it runs. Each plan comes with the
+demonstration's score (:mod:`studio.eval.demo_score`), and a one-line warning when the demonstration is far from
+the ones the policy learnt from. *Enlarge* shows the expert frames, the agent's frame and the decoded latent images
+large, in a modal window.
+
 Each task is planned and executed by the active policy of its scene (:meth:`studio.ui.runs.RunRegistry.active`):
 the user's choice for that scene, else the scene's shipped policy, else the oracle planner, labelled as the
-execution ceiling. The policy line names the policy of the selected task's scene; a checkpoint chosen for a scene
-it was not trained on is refused with the reason, never run.
+execution ceiling. The policy line names the policy of the selected task's scene (its measured summary is in the
+*About this policy* fold below it); a checkpoint chosen for a scene it was not trained on is refused with the
+reason, never run.
 """
 
 from __future__ import annotations
@@ -23,9 +30,11 @@ import numpy as np
 
 from studio.backend.plan_job import expert_indices
 from studio.data.splits import load_split
+from studio.model.checkpoint_info import read_checkpoint_info
 from studio.sim.tasks import list_tasks
+from studio.ui.demo_score_note import demo_score_note
 from studio.ui.guidance_note import guidance_note
-from studio.ui.images import filmstrip, thumbnail
+from studio.ui.images import ENLARGED_HEIGHT, filmstrip, open_enlarged, thumbnail
 from studio.ui.runs import SCENES, Checkpoint, SceneMismatch
 
 HINT = """Choose a **task** (held-out ones were never trained on), a **demonstration** of it and a scene
@@ -35,6 +44,19 @@ HINT = """Choose a **task** (held-out ones were never trained on), a **demonstra
 HELD_OUT = " (held-out)"
 SPEEDS = {"1× (real time)": 1.0, "0.5×": 0.5, "0.25×": 0.25, "as fast as possible": 0.0}
 _WAYPOINT = re.compile(r"waypoint (\d+) of (\d+)")
+EXPERT_LABEL = "Expert frames the model sees"
+NONE = "(none)"
+
+
+def frames_seen(checkpoint_path: str) -> int:
+    """How many frames of a demonstration ``checkpoint_path``'s model looks at (10 for the oracle or unknown)."""
+    if checkpoint_path == "oracle":
+        return 10
+    try:
+        model = (read_checkpoint_info(checkpoint_path).get("config") or {}).get("model") or {}
+        return int(model.get("n_expert_frames", 10))
+    except (OSError, ValueError, TypeError, AttributeError):
+        return 10
 
 
 def task_labels() -> dict[str, str]:
@@ -66,6 +88,10 @@ class ImitatePanel:
         self._rollout_token = 0
         self._demo_version = -1
         self._shown: dict[str, object] = {}
+        self._frames_of: str | None = None  # the demonstration whose frames the panel shows
+        self._expert_frames: np.ndarray | None = None  # those frames, full size (for Enlarge)
+        self._agent_frame: np.ndarray | None = None
+        self._latents: np.ndarray | None = None
         gui = tab.client.gui
         gui.add_markdown(HINT)
         first = next(iter(self.labels))
@@ -81,12 +107,17 @@ class ImitatePanel:
         self.speed = gui.add_dropdown("Speed", tuple(SPEEDS), initial_value="1× (real time)",
                                       hint="how fast the rollout runs while you watch it")  # fmt: skip
         self.policy = gui.add_markdown("")
+        with gui.add_folder("About this policy", expand_by_default=False):
+            self.policy_details = gui.add_markdown("")
         buttons = gui.add_button_group("Run", ("Plan", "Execute", "Re-plan", "Cancel"))
         self.buttons = buttons
         self.watch = gui.add_button("Watch the running rollout", visible=False)
         self.status = gui.add_markdown("")
+        self.score_note = gui.add_markdown("")
         self.outcome = gui.add_markdown("")
-        self.expert_strip = gui.add_image(np.full((20, 100, 3), 255, np.uint8), label="Expert frames the model sees",
+        self.enlarge = gui.add_button("Enlarge", icon="arrows-maximize", visible=False,
+                                      hint="the expert frames, the agent's frame and the latent images, large")  # fmt: skip
+        self.expert_strip = gui.add_image(np.full((20, 100, 3), 255, np.uint8), label=EXPERT_LABEL,
                                           visible=False)  # fmt: skip
         self.agent_image = gui.add_image(np.full((20, 100, 3), 255, np.uint8), label="Agent's first frame",
                                          visible=False)  # fmt: skip
@@ -95,6 +126,7 @@ class ImitatePanel:
         self.latent_note = gui.add_markdown("")
         self.task.on_update(lambda e: (self._fill_demos(), self._show_policy()))
         self.demo.on_update(lambda e: self._show_policy())  # a human video may have its own policy
+        self.enlarge.on_click(lambda _: tab.run(self.open_enlarged, "enlarging the images"))
         self.scripted.on_click(lambda _: tab.run(self.make_scripted, "making a scripted demonstration"))
         buttons.on_click(self._on_button)
         self.watch.on_click(lambda _: tab.run(self._watch_other, "watching the rollout"))
@@ -117,7 +149,7 @@ class ImitatePanel:
 
     def policy_text(self, task: str, demonstrator: str | None = None) -> str:
         """The policy line: which policy plans ``task`` (its scene's) from a ``demonstrator``'s demonstration,
-        and why that one."""
+        and why that one, in a few words (what was measured is :meth:`policy_about`)."""
         scene = task.split("/", 1)[0]
         head = f"Policy for **{scene}** tasks:"
         try:
@@ -134,26 +166,49 @@ class ImitatePanel:
             origin = f" (learnt from {demonstrator} demonstrations, like this one)"
         else:
             origin = ""
-        return f"{head} `{ck.id}`{origin}" + (f" — {ck.summary}" if ck.summary else "")
+        return f"{head} `{ck.id}`{origin}"
+
+    def policy_about(self, task: str, demonstrator: str | None = None) -> str:
+        """The fold under the policy line: the policy's measured results (its ``NAME.json`` summary) and file."""
+        try:
+            ck = self.policy_for(task, demonstrator)
+        except SceneMismatch as e:
+            return f"Refused: {e}."
+        if ck.is_oracle:
+            return (
+                "The oracle plans the scripted expert's waypoints from the simulator's true state: what execution "
+                "reaches with a perfect plan, not a model."
+            )
+        summary = ck.summary or "No measured results are recorded with this checkpoint."
+        return f"{summary}\n\nFile: `{ck.path}`"
 
     def _show_policy(self) -> None:
-        text = self.policy_text(self.task_name, self.demonstrator())
+        task, who = self.task_name, self.demonstrator()
+        text, about = self.policy_text(task, who), self.policy_about(task, who)
         if self._shown.get("policy") != text:
             self._shown["policy"] = text
             self.policy.content = text
+        if self._shown.get("policy_about") != about:
+            self._shown["policy_about"] = about
+            self.policy_details.content = about
 
     def _fill_demos(self) -> None:
         metas = self.app.store.episodes(task=self.task_name, role="expert", newest_first=True, limit=100)
-        options = tuple(f"{m.id} · {m.source} · {m.embodiment}" for m in metas) or ("(none)",)
+        options = tuple(f"{m.id} · {m.source} · {m.embodiment}" for m in metas) or (NONE,)
         if self.demo.options != options:
             keep = self.demo.value
             self.demo.options = options
             if keep in options:
                 self.demo.value = keep
 
+    def selected_demo(self) -> str | None:
+        """The id of the chosen demonstration; None when there is none."""
+        eid = self.demo.value.split(" ")[0]
+        return None if eid == NONE else eid
+
     def demo_id(self) -> str:
         eid = self.demo.value.split(" ")[0]
-        if eid == "(none)":
+        if eid == NONE:
             raise ValueError(
                 f"no demonstration of {self.task_name} yet: record, upload or make a scripted one"
             )
@@ -169,6 +224,84 @@ class ImitatePanel:
             self.tab.run(self.replan, "re-planning")
         elif action == "Cancel":
             self.tab.run(self.cancel, "cancelling")
+
+    # ------------------------------------------------------------------ what is shown
+    def shown_demo(self) -> str | None:
+        """The demonstration whose frames the panel must show: the running rollout's while one is attached and
+        running, else the one chosen."""
+        if self.rollout is not None and not self.rollout.terminal:
+            return str(self.rollout.spec["expert_episode_id"])
+        return self.selected_demo()
+
+    def show_expert_frames(self, episode_id: str | None, n: int | None = None) -> None:
+        """Show the frames of ``episode_id`` the model sees (``n`` of them; by default as many as the policy of the
+        task looks at), labelled with the demonstration's id; None hides them. A plan made from another
+        demonstration is cleared: its waypoints, latent images and score no longer belong to what is shown."""
+        if episode_id == self._frames_of and n is None:
+            return
+        planned = self.plan_job.spec.get("expert_episode_id") if self.plan_job is not None else None
+        if episode_id != planned and self._frames_of is not None and self.rollout_idle():
+            self._clear_plan(f"Demonstration changed to `{episode_id}`: **Plan** again to see its plan."
+                             if episode_id else "")  # fmt: skip
+        self._frames_of = episode_id
+        if episode_id is None:
+            self.expert_strip.visible = False
+            self._expert_frames = None
+            return
+        if n is None:
+            try:
+                n = frames_seen(self.policy_for(self.task_name, self.demonstrator()).path)
+            except ValueError:
+                n = 10
+        frames = self.app.store.load_frames(episode_id)
+        idx = expert_indices(len(frames), n)
+        self._expert_frames = frames[idx]
+        self.expert_strip.image = filmstrip(
+            frames[idx], cols=5, height=60, labels=[str(i + 1) for i in range(len(idx))]
+        )
+        self.expert_strip.label = f"{EXPERT_LABEL} — {episode_id}"
+        self.expert_strip.visible = True
+        self.enlarge.visible = True
+
+    def rollout_idle(self) -> bool:
+        return self.rollout is None or self.rollout.terminal
+
+    def _clear_plan(self, status: str) -> None:
+        """Forget the shown plan (its waypoints, agent frame, latent images and score)."""
+        self.plan_wps = None
+        self._agent_frame, self._latents = None, None
+        self.agent_image.visible = False
+        self.latent_strip.visible = False
+        self.latent_note.content = ""
+        self.score_note.content = ""
+        if self.tab.mode == "imitate" and self.tab.token != self._rollout_token:
+            self.tab.view.clear_overlay("plan")
+            self.tab.view.show_null_plan(None)
+        if status:
+            self.status.content = status
+
+    def enlarged_images(self) -> list[tuple[str, np.ndarray]]:
+        """What *Enlarge* shows: the expert frames, the agent's first frame and the decoded latent images."""
+        images = []
+        if self._expert_frames is not None:
+            frames = self._expert_frames
+            images.append((f"{EXPERT_LABEL} — {self._frames_of}",
+                           filmstrip(frames, cols=5, height=ENLARGED_HEIGHT,
+                                     labels=[str(i + 1) for i in range(len(frames))])))  # fmt: skip
+        if self._agent_frame is not None:
+            images.append(("Agent's first frame", thumbnail(self._agent_frame, 2 * ENLARGED_HEIGHT)))
+        if self._latents is not None:
+            lat = self._latents
+            images.append(("Predicted latent trajectory (decoded)",
+                           filmstrip(lat, cols=min(5, len(lat)), height=ENLARGED_HEIGHT,
+                                     labels=[f"t{i + 2}" for i in range(len(lat))])))  # fmt: skip
+        return images
+
+    def open_enlarged(self) -> None:
+        images = self.enlarged_images()
+        if not images:
+            raise ValueError("nothing to enlarge yet: choose a demonstration or Plan")
+        open_enlarged(self.tab.client.gui, "Imitate — enlarged", images)
 
     # ------------------------------------------------------------------ actions
     def make_scripted(self):
@@ -198,11 +331,12 @@ class ImitatePanel:
         self._show_scene(task, seed, f"Plan for **{task}**, seed {seed}.")
         self.tab.view.clear_overlay("plan")
         self.tab.view.show_null_plan(None)
-        self.latent_strip.visible = False  # the previous plan's images must not pass for this one's
         self.plan_job = self.app.jobs.submit(
             "plan", {"checkpoint": ck.path, "expert_episode_id": demo, "task": task, "seed": seed,
                      "robot": self._robot(task)}, started_by=self.tab.client.client_id,
         )  # fmt: skip
+        self._clear_plan("")  # the previous plan's images must not pass for this one's
+        self.show_expert_frames(demo, frames_seen(ck.path))
         self.status.content = f"Planning with {'the **oracle**' if ck.is_oracle else f'`{ck.id}`'}…"
         self.outcome.content = ""
         return self.plan_job
@@ -211,19 +345,23 @@ class ImitatePanel:
         result = tracked.result or {}
         data = np.load(self.app.data_dir / result["path"])
         self.plan_wps = data["waypoints_world"]
+        if tracked.spec["expert_episode_id"] != self.shown_demo():
+            self.plan_wps = None  # planned from a demonstration no longer chosen: not shown
+            self.status.content = (
+                f"The plan of `{tracked.spec['expert_episode_id']}` is not shown: another demonstration is chosen "
+                "now. **Plan** again."
+            )
+            return
         self.tab.view.show_waypoints("plan", self.plan_wps)
         self.tab.view.show_null_plan(data["null_waypoints_world"] if "null_waypoints_world" in data else None)
-        frames = self.app.store.load_frames(tracked.spec["expert_episode_id"])
-        idx = data["expert_indices"] if "expert_indices" in data else expert_indices(len(frames), 10)
-        self.expert_strip.image = filmstrip(
-            frames[idx], cols=5, height=60, labels=[str(i + 1) for i in range(len(idx))]
-        )
-        self.expert_strip.visible = True
+        self.show_expert_frames(tracked.spec["expert_episode_id"], len(data["expert_indices"]))
+        self._agent_frame = np.asarray(data["agent_frame"])
         self.agent_image.image = thumbnail(data["agent_frame"], 150)
         self.agent_image.visible = True
         self.tab.view.set_camera_image(data["agent_frame"])
         if "latent_images" in data:
             lat = data["latent_images"]
+            self._latents = np.asarray(lat)
             self.latent_strip.image = filmstrip(lat, cols=min(5, len(lat)), height=60,
                                                 labels=[f"t{i + 2}" for i in range(len(lat))])  # fmt: skip
             self.latent_strip.visible = True
@@ -241,6 +379,7 @@ class ImitatePanel:
             f"Planned in {result.get('planning_time_s', 0.0) * 1e3:.0f} ms. Waypoints 1–5, gripper {grip} "
             "(● closed). **Execute** to run it."
         ) + guidance_note(result.get("guidance"))
+        self.score_note.content = demo_score_note(result.get("demo_score"))
 
     def execute(self):
         task, seed, demo = self.task_name, int(self.seed.value), self.demo_id()
@@ -281,12 +420,11 @@ class ImitatePanel:
 
         self._listener = on_frame
         tracked.add_pose_listener(on_frame)
-        if (
-            self.plan_wps is not None
-            and self.plan_job is not None
-            and self.plan_job.spec.get("task") == spec["task"]
-        ):
+        planned = self.plan_job.spec if self.plan_job is not None else {}
+        same = all(planned.get(k) == spec.get(k) for k in ("task", "seed", "expert_episode_id", "checkpoint"))
+        if self.plan_wps is not None and same:
             self.tab.view.show_waypoints("plan", self.plan_wps)
+        self.show_expert_frames(str(spec["expert_episode_id"]), frames_seen(str(spec["checkpoint"])))
         self.status.content = "Starting the rollout…"
 
     def detach(self) -> None:
@@ -306,6 +444,8 @@ class ImitatePanel:
             self._demo_version = self.app.dataset_version
             self._fill_demos()
         self._show_policy()
+        if self.shown_demo() != self._frames_of:
+            self.show_expert_frames(self.shown_demo())
         self._refresh_expert_job()
         self._refresh_plan_job()
         self._refresh_rollout()
@@ -383,6 +523,7 @@ class ImitatePanel:
             self.outcome.content = f"### ✘ Rollout {job.state}\n{job.status.reason}"
             return
         r = job.result
+        self.score_note.content = demo_score_note(r.get("demo_score"))
         if r["success"]:
             self.outcome.content = f"### ✔ Success\n{r['replans']} re-plan(s); rollout `{r['rollout_id']}`."
         else:
