@@ -22,6 +22,7 @@ TARGETS: dict[str, str] = {
     "bus": "studio.bench.bus",
     "metaworld": "studio.bench.metaworld",
     "ui": "studio.bench.ui",
+    "click-demo": "studio.bench.click_demo",
 }
 
 

@@ -26,10 +26,22 @@ from studio.backend.forking import Continuation, DraftKeeper, new_draft_id, resu
 from studio.backend.teleop import DEFAULT_ROLE
 from studio.backend.teleop_client import TeleopClient, choose_sim_worker
 from studio.data.drafts import DraftError
+from studio.data.splits import load_split
 from studio.sim.tasks import list_tasks
+from studio.ui.reach import (
+    NUDGE_STEPS,
+    PATH_HZ,
+    HeightRules,
+    SceneModel,
+    clip_to_workspace,
+    object_label,
+    path_targets,
+)
+from studio.ui.teleop_cues import DepthCues, describe
 
-HINTS = """**Drag the gizmo** at the gripper to move the arm (IK runs on the sim worker);
-*Open* / *Close* the gripper. **Record** resets the scene to its seed and starts an episode;
+HINTS = """**Click** an object or the table in the 3D view to move the gripper over it (at its height), then
+**Down** / **Up**, *Close* / *Open*; nudge by a step or use the keys (arrows, PgUp/PgDn, D/U, C/O) for the last
+centimetres; or **drag the gizmo** at the gripper (IK runs on the sim worker). **Record** resets the scene to its seed and starts an episode;
 **Stop & save** stores it (success is pre-filled by the task's check — override it if you disagree);
 **Discard** drops it. Sawyer and human-hand recordings are expert demonstrations (the hand's stored as
 `human`; it grasps by pinching an object between thumb and index), Panda recordings agent trajectories."""
@@ -44,12 +56,43 @@ PREVIEW_HZ = 5.0
 #: (13–50 % with no image updates); docs/ui.md.
 FRUSTUM_IMAGE_HZ = 0.2
 PREVIEW_SIZE = (120, 160)
+#: Depth cues and the distance line are redrawn this often while the live session is shown.
+CUES_HZ = 5.0
+#: Gizmo size (metres) and handle width (pixels): large enough to grab without orbiting the camera by mistake.
+GIZMO_SCALE = 0.15
+GIZMO_LINE_WIDTH = 6.0
+#: Keyboard shortcuts (viser command hotkeys): nudges along the axes, Down / Up, Close / Open.
+HOTKEYS = {
+    "arrowleft": ("nudge", (-1, 0, 0)),
+    "arrowright": ("nudge", (1, 0, 0)),
+    "arrowdown": ("nudge", (0, -1, 0)),
+    "arrowup": ("nudge", (0, 1, 0)),
+    "pagedown": ("nudge", (0, 0, -1)),
+    "pageup": ("nudge", (0, 0, 1)),
+    "D": ("down", None),
+    "U": ("up", None),
+    "C": ("close", None),
+    "O": ("open", None),
+}
 #: The tab action that shows the live session (``StudioTab.run``'s name for it; queued once at a time).
 SHOW_LIVE = "showing the teleop scene"
 
 
 def scene_tasks(scene: str) -> list[str]:
     return list_tasks(scene)
+
+
+def held_out_note(task: str) -> str:
+    """A line under the task choice when ``task`` is held out of training in its scene's split."""
+    try:
+        held = task in load_split(task.split("/")[0]).test
+    except (FileNotFoundError, ValueError, KeyError):
+        return ""
+    return (
+        f"`{task}` is **held out**: the policies never train on it — a demonstration of it is for *Imitate*."
+        if held
+        else ""
+    )
 
 
 class TeleopPanel:
@@ -77,6 +120,16 @@ class TeleopPanel:
         self._fork_origin: dict = {}  # the rollout (and step) the recording in progress was forked from
         self.keeper = DraftKeeper(self.app.drafts)
         self._streaming = False
+        self._scene_model: SceneModel | None = None
+        self._rules: HeightRules | None = None
+        self._poses: np.ndarray | None = None
+        self._rest_pending = True
+        self._target: np.ndarray | None = None  # the newest end-effector target sent
+        self._path_gen = 0
+        self._goal: np.ndarray | None = None  # where the newest click / height / nudge motion goes
+        self._path_lock = threading.Lock()
+        self.clicks = 0
+        self.cues = DepthCues(tab.client.scene)
         gui = tab.client.gui
         gui.add_markdown(HINTS)
         scenes = tuple(s for s in SCENES if scene_tasks(s))
@@ -86,12 +139,26 @@ class TeleopPanel:
                                            "trajectories")  # fmt: skip
         tasks = scene_tasks(scenes[0])
         self.task = gui.add_dropdown("Task", tuple(tasks), initial_value=tasks[0])
+        self.task_note = gui.add_markdown(held_out_note(tasks[0]))
         self.seed = gui.add_number(
             "Seed", initial_value=0, min=0, step=1, hint="same seed, same initial scene"
         )
         self.scene_buttons = gui.add_button_group("Scene state", ("New seed", "Reset"))
         self.grip = gui.add_button_group("Gripper", ("Open", "Close"))
+        with gui.add_folder("Move by clicking"):
+            self.click_mode = gui.add_checkbox(
+                "Click to move",
+                initial_value=True,
+                hint="a click on an object or the table moves the gripper over it, keeping its height",
+            )
+            self.height = gui.add_button_group("Height", ("Down", "Up"))
+            self.nudge_step = gui.add_dropdown("Nudge step", tuple(NUDGE_STEPS), initial_value="1 cm")
+            self.nudge_x = gui.add_button_group("Nudge x", ("−x", "+x"))
+            self.nudge_y = gui.add_button_group("Nudge y", ("−y", "+y"))
+            self.nudge_z = gui.add_button_group("Nudge z", ("−z", "+z"))
         self.rec_status = gui.add_markdown("")
+        self.status = gui.add_markdown("Waiting for a sim worker…")
+        self.cue_line = gui.add_markdown("")
         self.record = gui.add_button("Record", color="red", icon="player-record",
                                      hint="reset the scene to its seed and start recording")  # fmt: skip
         self.stop = gui.add_button("Stop & save", icon="player-stop", disabled=True)
@@ -99,9 +166,8 @@ class TeleopPanel:
         self.success = gui.add_checkbox("Success", initial_value=False,
                                         hint="pre-filled by the task's success check; tick or untick to override")  # fmt: skip
         self.preview = gui.add_image(np.zeros((*PREVIEW_SIZE, 3), np.uint8), label="External camera (live)")
-        self.status = gui.add_markdown("Waiting for a sim worker…")
         with gui.add_folder(
-            "Interrupted recordings", expand_by_default=False, visible=False
+            "Interrupted recordings", expand_by_default=True, visible=False
         ) as self.drafts_folder:
             self.draft_list = gui.add_dropdown("Draft", ("(none)",))
             self.draft_buttons = gui.add_button_group("Draft action", ("Resume", "Drop"))
@@ -114,10 +180,18 @@ class TeleopPanel:
 
         self.scene.on_update(self._on_scene)
         self.robot.on_update(lambda e: e.client and tab.run(self.open, "opening the session"))
-        self.task.on_update(lambda e: e.client and tab.run(self.reset, "resetting the scene"))
+        self.task.on_update(self._on_task)
         self.seed.on_update(lambda e: e.client and tab.run(self.reset, "resetting the scene"))
         self.scene_buttons.on_click(self._on_scene_button)
         self.grip.on_click(lambda e: self.set_gripper(1.0 if e.target.value == "Close" else 0.0))
+        self.height.on_click(lambda e: self.move_height(e.target.value))
+        self.nudge_x.on_click(lambda e: self.nudge((1.0 if e.target.value == "+x" else -1.0, 0.0, 0.0)))
+        self.nudge_y.on_click(lambda e: self.nudge((0.0, 1.0 if e.target.value == "+y" else -1.0, 0.0)))
+        self.nudge_z.on_click(lambda e: self.nudge((0.0, 0.0, 1.0 if e.target.value == "+z" else -1.0)))
+        tab.client.scene.on_click()(self._on_scene_click)
+        for key, (what, axis) in HOTKEYS.items():
+            command = tab.client.gui.add_command(f"Teleop: {what} {axis or ''}".strip(), hotkey=key)
+            command.on_trigger(lambda _e, what=what, axis=axis: self._on_hotkey(what, axis))
         self.record.on_click(lambda _: tab.run(self.start_recording, "starting the recording"))
         self.stop.on_click(lambda _: tab.run(self.stop_and_save, "saving the episode"))
         self.discard.on_click(lambda _: tab.run(self.discard_recording, "discarding the recording"))
@@ -127,10 +201,40 @@ class TeleopPanel:
         self.draft_buttons.on_click(self._on_draft_button)
         self._drafts_shown: tuple = ()
         self._preview_thread = threading.Thread(target=self._preview_loop, daemon=True, name="teleop-preview")
+        self._cues_thread = threading.Thread(target=self._cues_loop, daemon=True, name="teleop-cues")
+
+    # ------------------------------------------------------------------ what the panel shows, read-only
+    @property
+    def recording(self) -> bool:
+        return self._recording
+
+    @property
+    def rest_known(self) -> bool:
+        """Whether the objects' rest heights of the current episode are known (Down's place height)."""
+        return not self._rest_pending
+
+    @property
+    def scene_model(self) -> SceneModel | None:
+        return self._scene_model
+
+    @property
+    def latest_poses(self) -> np.ndarray | None:
+        return self._poses
+
+    @property
+    def motion(self) -> tuple[int, np.ndarray | None]:
+        """The newest click, Down/Up or nudge motion: its number (0: none yet) and where it goes."""
+        return self._path_gen, None if self._goal is None else self._goal.copy()
+
+    @property
+    def target(self) -> np.ndarray | None:
+        """The newest end-effector target sent to the session."""
+        return None if self._target is None else self._target.copy()
 
     # ------------------------------------------------------------------ session
     def start(self) -> None:
         self._preview_thread.start()
+        self._cues_thread.start()
         self._await_worker()
 
     def _await_worker(self) -> None:
@@ -168,11 +272,14 @@ class TeleopPanel:
             # The last session's picture is another scene: blank until the new session's first frame.
             self.preview.image = np.zeros((*PREVIEW_SIZE, 3), np.uint8)
         self.info = self.client.open(scene, robot, task, seed)
+        self._rest_pending, self._target = True, None
         self._recording = False
         self._set_recording_ui(False)
         self._streaming = False  # a (re-)opened session streams nothing until the live view asks
         self.show_live()
-        self.status.content = f"**{task}** with the **{robot}**, seed {seed} — ready. Drag the gizmo."
+        self.status.content = (
+            f"**{task}** with the **{robot}**, seed {seed} — ready. Drag the gizmo or click an object."
+        )
 
     # ------------------------------------------------------------------ continuing episodes
     def continue_episode(self, go: Continuation, what: str) -> None:
@@ -189,6 +296,8 @@ class TeleopPanel:
             )
         self.status.content = f"Restoring {what} on `{self.client.worker}`…"
         self.info = self.client.open(go.scene, go.robot, go.task, go.seed, fork=go.fork)
+        self._gripper = float(go.fork.gripper)  # drags keep the episode's gripper (closed on a carry)
+        self._rest_pending, self._target = True, None
         # Show what the session is (these widgets only reopen the session on a user's change).
         if self.scene.value != go.scene:
             self.scene.value = go.scene
@@ -249,6 +358,7 @@ class TeleopPanel:
         if self._recording:
             self.tab.notify("Recording discarded", "Resetting the scene discarded the unsaved recording.")
         self.info = self.client.reset(task, seed)
+        self._rest_pending, self._target = True, None
         if self._recording:
             self._drop_draft()
         self._recording = False
@@ -262,22 +372,42 @@ class TeleopPanel:
             return
         info = self.info
         key = ("teleop", info.scene, info.robot, info.body_names)
-        if key != self._geometry_key or self.tab.view.key != key:
-            self.tab.view.load(self.client.geometry(), key)
+        if key != self._geometry_key or self.tab.view.key != key or self._scene_model is None:
+            geometry = self.client.geometry()
+            self.tab.view.load(geometry, key)
             self._geometry_key = key
+            self._scene_model = SceneModel(geometry, info.robot)
+            self._rules = HeightRules(info.robot)
         self._token = self.tab.set_mode("teleop")
         self.tab.view.set_camera(info.camera)
         _, version = self.client.poses.get()
         frame, _ = self.client.poses.wait_newer(version, 1.0)  # a pose of the scene as it is now
         if frame is not None:
             self.tab.push_poses(self._token, frame.poses_array())
+            self._remember_rest(frame)
         self._place_gizmo(np.asarray(frame.ee_pos) if frame is not None else None)
+
+    def _remember_rest(self, frame: msg.PoseFrame | None = None) -> None:
+        """After a reset or restore, note where the objects rest (Down's place height), from a fresh pose."""
+        if not self._rest_pending or self._scene_model is None or self._rules is None or self.client is None:
+            return
+        if frame is None:
+            _, version = self.client.poses.get()
+            frame, version = self.client.poses.wait_newer(version, 1.0)
+            frame, _ = self.client.poses.wait_newer(version, 1.0)  # past a frame that was in flight
+        if frame is not None:
+            self._rules.remember_rest(
+                self._scene_model.object_positions(frame.poses_array()), np.asarray(frame.ee_pos)
+            )
+            self._rest_pending = False
 
     def on_mode(self, mode: str) -> None:
         """The tab's scene changed what it shows: the gizmo and the camera stream only serve the live view."""
         live = mode == "teleop"
         if self.gizmo is not None:
             self.gizmo.visible = live
+        if not live:
+            self.cues.hide()
         client = self.client
         if client is not None and live != self._streaming:
             self._streaming = live
@@ -291,7 +421,12 @@ class TeleopPanel:
             return
         if self.gizmo is None:
             self.gizmo = self.tab.client.scene.add_transform_controls(
-                "/gizmo", scale=0.12, disable_rotations=True, depth_test=False, line_width=3.0, position=ee
+                "/gizmo",
+                scale=GIZMO_SCALE,
+                disable_rotations=True,
+                depth_test=False,
+                line_width=GIZMO_LINE_WIDTH,
+                position=ee,
             )
             self.gizmo.on_update(self._on_gizmo_event)
         else:
@@ -302,6 +437,7 @@ class TeleopPanel:
     def _on_gizmo_event(self, event) -> None:
         if event.client is not None:
             self.drags += 1
+            self._path_gen += 1  # a drag takes over from a click's motion
         self.move_to(np.asarray(event.target.position, dtype=np.float64))
 
     def move_to(self, position: np.ndarray) -> int | None:
@@ -312,6 +448,7 @@ class TeleopPanel:
         if self.tab.mode != "teleop" and SHOW_LIVE not in self.tab.actions:
             self.tab.run(self.show_live, SHOW_LIVE)  # once, not once per drag event
         seq = self.client.set_target(position, self._gripper)
+        self._target = np.asarray(position, dtype=np.float64)
         with self._pending_lock:
             self._pending[seq] = received
             if len(self._pending) > 1000:
@@ -323,19 +460,136 @@ class TeleopPanel:
         self._gripper = float(closed)
         if self.client is None:
             return
-        frame = self.client.latest_pose()
-        target = (
-            np.asarray(self.gizmo.position)
-            if self.gizmo is not None
-            else np.asarray(frame.ee_pos)
-            if frame
-            else None
-        )
+        target = self._current_target()
         if target is not None:
             self.move_to(target)
 
+    # ------------------------------------------------------------------ click to reach
+    def _current_target(self) -> np.ndarray | None:
+        """Where the arm is being sent: the newest target, else the gizmo, else the grasp point."""
+        if self._target is not None:
+            return self._target.copy()
+        if self.gizmo is not None:
+            return np.asarray(self.gizmo.position, dtype=np.float64)
+        frame = self.client.latest_pose() if self.client is not None else None
+        return np.asarray(frame.ee_pos, dtype=np.float64) if frame is not None else None
+
+    def reach(self, goal: np.ndarray) -> int:
+        """Move the target to ``goal`` along a minimum-jerk path (replacing a path under way); returns its id."""
+        start = self._current_target()
+        if start is None or self.client is None:
+            return -1
+        goal = clip_to_workspace(goal)
+        targets = path_targets(start, goal)
+        with self._path_lock:
+            self._path_gen += 1
+            gen = self._path_gen
+            self._goal = goal.copy()
+
+        def run() -> None:
+            period = 1.0 / PATH_HZ
+            due = time.monotonic()
+            for p in targets:
+                if gen != self._path_gen or self._closed:
+                    return
+                try:
+                    self.move_to(p)
+                except bus.BusError:
+                    return
+                due += period
+                time.sleep(max(0.0, due - time.monotonic()))
+            if gen == self._path_gen and self.gizmo is not None:
+                self.gizmo.position = goal
+
+        threading.Thread(target=run, daemon=True, name="teleop-reach").start()
+        return gen
+
+    def _on_scene_click(self, event) -> None:
+        """A click in the 3D view: move over what it hit (an object's centre, or the point on a surface)."""
+        model, poses = self._scene_model, self._poses
+        if not self.click_mode.value or self.tab.mode != "teleop" or model is None or poses is None:
+            return
+        hit = model.cast(poses, event.ray_origin, event.ray_direction)
+        if hit is None:
+            self.status.content = "That click hit nothing in the scene: click an object or the table."
+            return
+        start = self._current_target()
+        if start is None:
+            return
+        self.clicks += 1
+        point = model.object_positions(poses)[hit.body] if hit.is_object else hit.point
+        self.reach(np.array([point[0], point[1], start[2]]))
+        what = f"the **{object_label(hit.body)}**" if hit.is_object else f"the {object_label(hit.body)}"
+        self.status.content = f"Moving over {what} at ({point[0]:.3f}, {point[1]:.3f}). **Down** to descend, **Close** to grasp."
+
+    def move_height(self, which: str) -> None:
+        """Down: to the grasp height of the object below, the place height of one held, or just above the table;
+        Up: to the carrying height."""
+        model, rules, poses, start = self._scene_model, self._rules, self._poses, self._current_target()
+        if model is None or rules is None or poses is None or start is None or self.client is None:
+            return
+        frame = self.client.latest_pose()
+        ee = np.asarray(frame.ee_pos, dtype=np.float64) if frame is not None else start
+        if which == "Up":
+            z, why = rules.up(ee), "up to carrying height"
+        else:
+            objects = model.object_positions(poses)
+            held = rules.held(ee, self._gripper, objects)
+            below = model.cast(poses, ee, (0.0, 0.0, -1.0), skip=frozenset({held} if held else ()))
+            z, why = rules.down(ee, self._gripper, objects, None if below is None else float(below.point[2]))
+        self.reach(np.array([start[0], start[1], z]))
+        self.status.content = f"{which}: {why} (grasp point to {100 * z:.1f} cm)."
+
+    def nudge(self, axis) -> None:
+        start = self._current_target()
+        if start is None:
+            return
+        step = NUDGE_STEPS.get(self.nudge_step.value, 0.01)
+        self.reach(start + step * np.asarray(axis, dtype=np.float64))
+
+    def _on_hotkey(self, what: str, axis) -> None:
+        if self.tab.mode != "teleop":
+            return
+        if what == "nudge":
+            self.nudge(axis)
+        elif what in ("down", "up"):
+            self.move_height(what.capitalize())
+        else:
+            self.set_gripper(1.0 if what == "close" else 0.0)
+
+    def _cues_loop(self) -> None:
+        """Redraw the depth cues and the distance line while the live session is shown."""
+        shown = ""
+        while not self._closed:
+            time.sleep(1.0 / CUES_HZ)
+            model, rules, poses, client = self._scene_model, self._rules, self._poses, self.client
+            if self.tab.mode != "teleop" or model is None or rules is None or poses is None or client is None:
+                continue
+            frame = client.latest_pose()
+            if frame is None:
+                continue
+            ee = np.asarray(frame.ee_pos, dtype=np.float64)
+            objects = model.object_positions(poses)
+            held = rules.held(ee, float(frame.gripper), objects)
+            below = model.cast(poses, ee, (0.0, 0.0, -1.0), skip=frozenset({held} if held else ()))
+            focus = held or rules.under(ee, objects)
+            try:
+                self.cues.show(ee, below, model.outline(poses, focus) if focus else None)
+            except Exception:  # a tab closing under the loop: the next pass sees it closed
+                continue
+            nearest = min(
+                ((n, float(np.linalg.norm(p - ee))) for n, p in objects.items()),
+                key=lambda x: x[1],
+                default=None,
+            )
+            line = describe(ee, below, nearest, held)
+            if line != shown:
+                shown = line
+                self.cue_line.content = line
+
     def _on_pose(self, frame: msg.PoseFrame) -> None:
         """Every pose frame of the session (Zenoh thread): to the scene, and latency bookkeeping."""
+        self._poses = frame.poses_array()
         ack = None
         if frame.ack_seq >= 0:
             now = time.perf_counter()
@@ -347,7 +601,7 @@ class TeleopPanel:
             if sent:
                 ack = (frame.ack_seq, min(sent))
         if self.tab.mode == "teleop":
-            self.tab.push_poses(self._token, frame.poses_array(), ack)
+            self.tab.push_poses(self._token, self._poses, ack)
 
     def _preview_loop(self) -> None:
         version = 0
@@ -394,6 +648,7 @@ class TeleopPanel:
                                        "control_dt": info.control_dt, "role": role})  # fmt: skip
         try:
             self.client.start_recording(role=role, reset=True, draft=draft)
+            self._rest_pending, self._target = True, None
         except BaseException:
             self.app.drafts.discard(draft)
             raise
@@ -403,6 +658,7 @@ class TeleopPanel:
         self.success.value = False
         frame = self.client.latest_pose()
         self._place_gizmo(np.asarray(frame.ee_pos) if frame is not None else None)
+        self._remember_rest()
         self._set_recording_ui(True)
         self.status.content = "Recording — move the arm, then **Stop & save** or **Discard**."
 
@@ -512,9 +768,15 @@ class TeleopPanel:
         tasks = scene_tasks(scene)
         self.task.options = tuple(tasks)
         self.task.value = tasks[0]
+        self.task_note.content = held_out_note(tasks[0])
         self.robot.options = ("sawyer",) if scene == "metaworld" else TABLETOP_ROBOTS
         if self.robot.value not in self.robot.options:
             self.robot.value = "sawyer"
+
+    def _on_task(self, event) -> None:
+        self.task_note.content = held_out_note(self.task.value)
+        if event.client is not None:
+            self.tab.run(self.reset, "resetting the scene")
 
     def _on_scene_button(self, event) -> None:
         if event.target.value == "New seed":

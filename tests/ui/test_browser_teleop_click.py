@@ -1,0 +1,134 @@
+"""Recording a demonstration by clicking, as a person does: real mouse clicks on the 3D canvas and the panel.
+
+Every action is a browser event (a mouse click on the canvas where the object appears, a click on a panel
+button), made by :class:`studio.bench.click_demo.ClickPerson`, which reads the app only to know where things are
+on the screen and to wait for the arm to arrive before its next click, as a person watches it. The actions and
+the simulated time are counted, and the stored episode passes the task's own check, computed here from its
+arrays: the success box is never touched.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+from studio.bench.click_demo import ClickPerson
+from studio.sim.tasks import get_task
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import browser_support as ui
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.timeout(600)]
+
+#: A person met no grasp in ten minutes of dragging; clicking must do it in this many actions ...
+MAX_ACTIONS = 12
+#: ... and this much simulated time.
+MAX_SIM_SECONDS = 60.0
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory):
+    d = tmp_path_factory.mktemp("screenshots")
+    yield d
+    print(f"\nscreenshots: {d}")
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory):
+    with ui.running_studio(tmp_path_factory.mktemp("studio") / "data") as app:
+        yield app
+
+
+@pytest.fixture(scope="module")
+def page(studio):
+    with ui.open_page(studio) as pg:
+        yield pg
+
+
+def _new_episode(studio, before: set[str]):
+    (new,) = [m for m in studio.store.episodes() if m.id not in before]
+    return new
+
+
+def _task_check(studio, meta) -> bool:
+    """The task's own success check on the stored episode's last tick (not the verdict the panel stored)."""
+    _, _, arrays = studio.store.load_arrays(meta.id)
+    poses = arrays["object_poses"]
+    objects = {n: poses[-1, k, :3] for k, n in enumerate(meta.object_names)}
+    initial = {n: poses[0, k, :3] for k, n in enumerate(meta.object_names)}
+    task = get_task(meta.task)
+    held = task.obj if arrays["gripper_cmd"][-1] >= 0.5 and task.scene == "pick_place" else None
+    layout = task.sample_layout(meta.seed)
+    return bool(task.success(objects, initial, layout, arrays["ee_pos_world"][-1], held))
+
+
+class ShootingPerson(ClickPerson):
+    """The same person, with screenshots at the moments worth looking at."""
+
+    def __init__(self, page, tab, shots: Path, prefix: str):
+        super().__init__(page, tab)
+        self.shots, self.prefix = shots, prefix
+
+    def button(self, name: str) -> None:
+        if name in ("Close", "Stop & save"):
+            ui.shot(self.page, self.shots / f"{self.prefix}-before-{name.split()[0].lower()}.png")
+        super().button(name)
+
+
+def _check_saved(studio, tp, person, before, task: str) -> None:
+    new = _new_episode(studio, before)
+    seconds = new.num_steps * tp.info.control_dt
+    assert _task_check(studio, new), f"{task}: the stored episode fails the task's own check"
+    assert new.success is True and new.task == task and new.source == "teleop" and new.role == "expert"
+    assert not tp._success_touched, "the verdict is the task's check, not the test's"
+    assert len(person.actions) <= MAX_ACTIONS, person.actions
+    assert seconds < MAX_SIM_SECONDS, f"{seconds:.1f} s of simulated time"
+    print(f"\n{task} by clicking: {len(person.actions)} actions, {seconds:.1f} s simulated")
+
+
+def test_a_pick_and_place_demonstration_by_clicking(studio, page, shots):
+    """Record, click the cube, Down, Close, Up, click the red zone, Down, Open, Stop & save: nine actions."""
+    tab = ui.tab(studio)
+    tp = tab.teleop
+    assert (tp.info.scene, tp.info.robot, tp.info.task) == ("pick_place", "sawyer", "pick_place/cube->red")
+    person = ShootingPerson(page, tab, shots, "pick")
+    before = {m.id for m in studio.store.episodes()}
+    person.demonstrate("pick_place/cube->red")
+    _check_saved(studio, tp, person, before, "pick_place/cube->red")
+    assert person.actions[:3] == ["Record", "click the cube", "Down"], person.actions
+
+
+def test_the_depth_cues_name_the_object_under_the_gripper(studio, page, shots):
+    """Just after placing the cube (the gripper open over it): the status line says how high above the cube's
+    top the grasp point is, and the drop line, shadow and yellow outline are drawn."""
+    tab = ui.tab(studio)
+    tp = tab.teleop
+    person = ClickPerson(page, tab)
+    cube = person.objects()["obj_cube"]
+    ui.wait(lambda: "above the cube" in tp.cue_line.content, 10, "the cue line", lambda: tp.cue_line.content)
+    ui.wait(lambda: tp.cues.visible, 5, "the depth cues")
+    ui.shot(page, shots / "cues-over-cube.png")
+    height = float(tp.cue_line.content.split("**")[1].split()[0]) / 100
+    assert abs(height - (person.ee()[2] - (cube[2] + 0.022))) < 0.01, tp.cue_line.content  # the cube's top
+    assert "from the cube" in tp.cue_line.content, tp.cue_line.content
+
+
+def test_a_push_demonstration_by_clicking(studio, page, shots):
+    """Push scene: click behind the box, Close, Down, click beyond it, Stop & save."""
+    tab = ui.tab(studio)
+    tp = tab.teleop
+    ui.choose(
+        page,
+        "Scene",
+        "push",
+        lambda: tp.info and tp.info.scene == "push" and not tab.actions,
+        "the push scene",
+        lambda: ui.teleop_state(tab),
+    )
+    assert tp.info.task == "push/red-forward", tp.info.task
+    person = ShootingPerson(page, tab, shots, "push")
+    before = {m.id for m in studio.store.episodes()}
+    person.demonstrate("push/red-forward")
+    _check_saved(studio, tp, person, before, "push/red-forward")
