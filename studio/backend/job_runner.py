@@ -80,6 +80,14 @@ JOB_KINDS: dict[str, JobKind] = {
         requeue_on_worker_loss=False,
         description="record and store one scripted expert demonstration; spec: task, seed, robot",
     ),
+    "collect": JobKind(
+        name="collect",
+        worker_kind="sim",
+        handler="studio.backend.collect_job:run_collect_job",
+        requeue_on_worker_loss=True,
+        description="scripted episodes in bulk, as studio collect; spec: studio.backend.collect_job.CollectJobSpec "
+        "(re-queued, it makes only the episodes still missing)",
+    ),
 }
 
 Handler = Callable[["JobContext"], "dict[str, Any] | None"]

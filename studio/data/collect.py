@@ -16,6 +16,10 @@ Meta-World (``--scene metaworld``) has only the Sawyer and its own scripted poli
 episodes are stored once, as role ``expert`` with embodiment ``sawyer``, and the training view pairs the
 pool with itself (``PairDataset(..., scene="metaworld")`` does so by default).
 Frames are rendered only for the stored frames (``--min-frames``, ≥ 20), arrays at the full control rate.
+
+:func:`collect` also serves the ``collect`` job of a sim worker (:mod:`studio.backend.collect_job`, the Data tab's
+*Collect scripted episodes*): ``on_slot`` hears of every slot done and ``should_stop`` ends the run between slots
+(an episode is stored whole or not at all, so stopping leaves no half-written one; running again resumes).
 """
 
 from __future__ import annotations
@@ -147,6 +151,13 @@ class CollectResult:
     missing: list[tuple[str, int]]
     errors: list[str]
     seconds: float
+    stopped: bool = False
+    """``should_stop`` ended the run before every slot was tried."""
+
+    @property
+    def left(self) -> int:
+        """Slots not tried because the run was stopped."""
+        return self.requested - self.already_present - self.made - len(self.missing)
 
     @property
     def episodes_per_min(self) -> float:
@@ -160,7 +171,29 @@ class CollectResult:
         )
         if self.missing:
             text += f"; {len(self.missing)} slots still missing (run again to retry)"
+        if self.stopped:
+            text += f"; stopped with {self.left} slots not tried (run again to continue)"
         return text
+
+
+@dataclass(frozen=True)
+class SlotDone:
+    """What :func:`collect` tells ``on_slot`` after each slot: the slot, and the run so far.
+
+    ``done`` counts the slots tried of ``todo`` (the slots the catalog did not have when the run started);
+    ``requested`` = tasks × episodes = ``already_present`` + ``todo``.
+    """
+
+    task: str
+    index: int
+    stored: bool
+    done: int
+    todo: int
+    requested: int
+    already_present: int
+    made: int
+    failed_attempts: int
+    missing: int
 
 
 def episode_seed(base_seed: int, robot: str, task: str, index: int, attempt: int = 0) -> int:
@@ -248,9 +281,22 @@ def _close_worker() -> None:
 
 
 # ---------------------------------------------------------------------- driver
-def collect(cfg: CollectConfig) -> CollectResult:
-    """Run (or resume) a collection; returns what was done."""
+def collect(
+    cfg: CollectConfig,
+    *,
+    on_slot: Callable[[SlotDone], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> CollectResult:
+    """Run (or resume) a collection; returns what was done.
+
+    ``on_slot`` is called after every slot tried (:class:`SlotDone`). ``should_stop`` is asked before each slot;
+    once it says True no further slot starts and the result says ``stopped`` (the slot being made when it turned
+    True is finished and stored first: episodes are stored whole). It needs ``workers == 1``.
+    """
     from tqdm import tqdm
+
+    if should_stop is not None and cfg.workers != 1:
+        raise ValueError("collect(should_stop=...) runs the slots in this process: use workers=1")
 
     tasks = resolve_tasks(cfg.scene, cfg.tasks)
     store = EpisodeStore(cfg.data_dir)
@@ -262,7 +308,17 @@ def collect(cfg: CollectConfig) -> CollectResult:
     made, failed_attempts = 0, 0
     missing: list[tuple[str, int]] = []
     errors: list[str] = []
+    stopped = False
     start = time.perf_counter()
+
+    def account(res: tuple[str, int, bool, int, str | None], done: int) -> None:
+        nonlocal made, failed_attempts
+        made, failed_attempts = _account(res, made, failed_attempts, missing, errors, bar)
+        if on_slot is not None:
+            on_slot(SlotDone(task=res[0], index=res[1], stored=res[2], done=done, todo=len(todo),
+                             requested=requested, already_present=requested - len(todo), made=made,
+                             failed_attempts=failed_attempts, missing=len(missing)))  # fmt: skip
+
     bar = tqdm(
         total=len(todo),
         desc=f"collect {cfg.scene} {cfg.robot} ({cfg.episode_role})",
@@ -276,9 +332,11 @@ def collect(cfg: CollectConfig) -> CollectResult:
         if cfg.workers == 1 or len(todo) <= 1:
             _init_worker(cfg_dict)
             try:
-                results = (_make_slot(s) for s in todo)
-                for res in results:
-                    made, failed_attempts = _account(res, made, failed_attempts, missing, errors, bar)
+                for done, slot in enumerate(todo, 1):
+                    if should_stop is not None and should_stop():
+                        stopped = True
+                        break
+                    account(_make_slot(slot), done)
             finally:
                 _close_worker()
         else:
@@ -286,8 +344,8 @@ def collect(cfg: CollectConfig) -> CollectResult:
             with ctx.Pool(
                 min(cfg.workers, len(todo)), initializer=_init_worker, initargs=(cfg_dict,)
             ) as pool:
-                for res in pool.imap_unordered(_make_slot, todo):
-                    made, failed_attempts = _account(res, made, failed_attempts, missing, errors, bar)
+                for done, res in enumerate(pool.imap_unordered(_make_slot, todo), 1):
+                    account(res, done)
     finally:
         bar.close()
         store.close()
@@ -299,6 +357,7 @@ def collect(cfg: CollectConfig) -> CollectResult:
         missing=sorted(missing),
         errors=errors,
         seconds=time.perf_counter() - start,
+        stopped=stopped,
     )
 
 
