@@ -70,8 +70,12 @@ class DemoScore:
         return self.score <= self.threshold
 
     def to_dict(self) -> dict[str, Any]:
-        return {"score": self.score, "threshold": self.threshold, "familiar": self.familiar,
-                "calibration": self.calibration}  # fmt: skip
+        return {
+            "score": self.score,
+            "threshold": self.threshold,
+            "familiar": self.familiar,
+            "calibration": self.calibration,
+        }
 
 
 @dataclass
@@ -108,12 +112,18 @@ class Calibration:
         by_kind = {
             k: [float(s) for s, kk in zip(neg, self.negative_kinds, strict=True) if kk == k] for k in kinds
         }
-        return {"threshold": self.threshold, "source": self.source, "held_out": len(pos),
-                "held_out_min": float(pos.min()), "held_out_median": float(np.median(pos)),
-                "held_out_max": float(pos.max()), "synthetic": len(neg),
-                "synthetic_min": {k: min(v) for k, v in by_kind.items()},
-                "synthetic_below_threshold": int((neg <= self.threshold).sum()),
-                "reference_frames": len(self.reference)}  # fmt: skip
+        return {
+            "threshold": self.threshold,
+            "source": self.source,
+            "held_out": len(pos),
+            "held_out_min": float(pos.min()),
+            "held_out_median": float(np.median(pos)),
+            "held_out_max": float(pos.max()),
+            "synthetic": len(neg),
+            "synthetic_min": {k: min(v) for k, v in by_kind.items()},
+            "synthetic_below_threshold": int((neg <= self.threshold).sum()),
+            "reference_frames": len(self.reference),
+        }
 
     def save(self, path: str | os.PathLike) -> None:
         path = Path(path)
@@ -275,8 +285,17 @@ def calibrate(
         synthetic = synthetic_videos(size)
     kinds = [k for k, _ in synthetic]
     negatives = [score(frame_features(model, v)) for _, v in synthetic]
-    return Calibration(mean, spread, ref.astype(np.float32), choose_threshold(positives, negatives),
-                       np.asarray(positives), np.asarray(negatives), kinds, source, checkpoint_stamp)  # fmt: skip
+    return Calibration(
+        mean,
+        spread,
+        ref.astype(np.float32),
+        choose_threshold(positives, negatives),
+        np.asarray(positives),
+        np.asarray(negatives),
+        kinds,
+        source,
+        checkpoint_stamp,
+    )
 
 
 def calibration_path(checkpoint: str | os.PathLike) -> Path:
@@ -359,8 +378,9 @@ def load_or_calibrate(model, checkpoint: str | os.PathLike, store=None) -> Calib
 
 def score_demonstration(model, calibration: Calibration, frames: np.ndarray) -> DemoScore:
     """``frames``' score against ``calibration`` (``model``: the policy's, as it plans)."""
-    return DemoScore(calibration.score_features(frame_features(model, frames)), calibration.threshold,
-                     calibration.source)  # fmt: skip
+    return DemoScore(
+        calibration.score_features(frame_features(model, frames)), calibration.threshold, calibration.source
+    )
 
 
 def worker_score(model, checkpoint: str, episode_id: str, frames: np.ndarray, store=None) -> dict[str, Any]:
@@ -378,8 +398,9 @@ def worker_score(model, checkpoint: str, episode_id: str, frames: np.ndarray, st
         cal = process_cached(("demo-score", *version), lambda: load_or_calibrate(model, checkpoint, store))
     except ValueError as e:
         return {"unavailable": str(e)}
-    return process_cached(("demo-score", *version, episode_id),
-                          lambda: score_demonstration(model, cal, frames).to_dict())  # fmt: skip
+    return process_cached(
+        ("demo-score", *version, episode_id), lambda: score_demonstration(model, cal, frames).to_dict()
+    )
 
 
 # ---------------------------------------------------------------------------------------------- command line
@@ -406,8 +427,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     cal = calibrate(planner.model, reference, held_out, checkpoint_stamp=checkpoint_stamp(args.checkpoint))
     out = Path(args.out) if args.out else calibration_path(args.checkpoint)
     cal.save(out)
-    figures = {"checkpoint": str(args.checkpoint), "out": str(out), "reference_demonstrations": len(reference),
-               **cal.figures(), "seconds": round(time.perf_counter() - started, 1)}  # fmt: skip
+    figures = {
+        "checkpoint": str(args.checkpoint),
+        "out": str(out),
+        "reference_demonstrations": len(reference),
+        **cal.figures(),
+        "seconds": round(time.perf_counter() - started, 1),
+    }
     print(json.dumps(figures, indent=1))
     return 0
 

@@ -67,8 +67,9 @@ def side_by_side(left: np.ndarray, right: np.ndarray, height: int = 120, gap: in
     return out
 
 
-def open_enlarged(gui, title: str, images: Sequence[tuple[str, np.ndarray]],
-                  on_close: Callable[[], None] | None = None) -> list:  # fmt: skip
+def open_enlarged(
+    gui, title: str, images: Sequence[tuple[str, np.ndarray]], on_close: Callable[[], None] | None = None
+) -> list:
     """A modal titled ``title`` showing ``images`` ((label, RGB image) pairs, drawn as large as the window
     allows) with a *Close* button; returns the image handles (a caller may keep updating them while it is open)."""
     if not images:

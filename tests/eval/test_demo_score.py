@@ -174,8 +174,12 @@ def test_a_fresh_held_out_demonstration_passes_and_a_blob_video_is_flagged(pick_
         blob[t][(yy - 150) ** 2 + (xx - 100 - 4 * t) ** 2 < 60**2] = (30, 200, 60)
     flagged = ds.score_demonstration(planner.model, cal, blob)
     assert not flagged.familiar and flagged.score > 1.5 * cal.threshold, flagged
-    assert flagged.to_dict() == {"score": flagged.score, "threshold": cal.threshold, "familiar": False,
-                                 "calibration": "held-out demonstrations"}  # fmt: skip
+    assert flagged.to_dict() == {
+        "score": flagged.score,
+        "threshold": cal.threshold,
+        "familiar": False,
+        "calibration": "held-out demonstrations",
+    }
 
 
 def test_the_calibration_command_prints_its_figures(tmp_path, capsys):

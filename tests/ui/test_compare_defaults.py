@@ -29,8 +29,15 @@ def runs(tmp_path):
 
 def test_only_checkpoints_of_the_scene_are_offered_best_first(runs):
     ids = [c.id for c in scene_checkpoints(runs, "pick_place")]
-    assert ids == ["default/pick-place-cpu", "default/pick-place-no-world-model", "default/pick-place-panda-demos",
-                   "default/pick-place-human-demos", "pp-new/best", "pp-old/best", "oracle"]  # fmt: skip
+    assert ids == [
+        "default/pick-place-cpu",
+        "default/pick-place-no-world-model",
+        "default/pick-place-panda-demos",
+        "default/pick-place-human-demos",
+        "pp-new/best",
+        "pp-old/best",
+        "oracle",
+    ]
     push = [c.id for c in scene_checkpoints(runs, "push")]
     assert "push-run/best" in push and not [i for i in push if "pick" in i or "metaworld" in i]
     assert [c.id for c in scene_checkpoints(runs, "metaworld")] == ["default/metaworld-cpu", "oracle"]

@@ -48,6 +48,7 @@ from studio.eval.compare import (
 from studio.eval.evaluation import default_expert_embodiments
 from studio.sim.tasks import list_tasks
 from studio.ui.images import ENLARGED_HEIGHT, filmstrip, open_enlarged
+from studio.ui.job_board import TrackedJob
 from studio.ui.runs import Checkpoint, RunRegistry, SceneMismatch
 from studio.ui.timeline import Timeline
 
@@ -106,7 +107,7 @@ class ScriptedDemos:
     spec: dict
     labels: tuple[str, str]
     tasks: list[str]
-    jobs: dict[str, object] = field(default_factory=dict)  # task -> its expert job
+    jobs: dict[str, TrackedJob] = field(default_factory=dict)  # task -> its expert job
     tries: dict[str, int] = field(default_factory=dict)  # task -> seeds tried
     done: set[str] = field(default_factory=set)
 
@@ -214,8 +215,12 @@ class ComparePanel:
         self.info = gui.add_markdown("")
         self.image = gui.add_image(np.full((120, 320, 3), 255, np.uint8), label="Camera: A (left) · B (right)",
                                    visible=False)  # fmt: skip
-        self.enlarge = gui.add_button("Enlarge", icon="arrows-maximize", visible=False,
-                                      hint="A's and B's camera views large; they follow the timeline")  # fmt: skip
+        self.enlarge = gui.add_button(
+            "Enlarge",
+            icon="arrows-maximize",
+            visible=False,
+            hint="A's and B's camera views large; they follow the timeline",
+        )
         self._enlarged: list = []  # the open Enlarge modal's image, updated as the timeline moves
         self.timeline = Timeline(gui, "Step", self._show_step, fps=30.0)
         self.step_info = gui.add_markdown("")
@@ -314,8 +319,9 @@ class ComparePanel:
         assert making is not None
         tried = making.tries.get(task, 0)
         making.tries[task] = tried + 1
-        making.jobs[task] = self.app.jobs.submit("expert", {"task": task, "seed": SCRIPTED_SEEDS[tried]},
-                                                 started_by=self.tab.client.client_id)  # fmt: skip
+        making.jobs[task] = self.app.jobs.submit(
+            "expert", {"task": task, "seed": SCRIPTED_SEEDS[tried]}, started_by=self.tab.client.client_id
+        )
 
     def _show_making(self) -> None:
         making = self.making
@@ -473,17 +479,24 @@ class ComparePanel:
         assert self.sides is not None
         a, b = self.sides
         frames = np.stack([a.frame_at(min(step, a.steps - 1)), b.frame_at(min(step, b.steps - 1))])
-        return filmstrip(frames, cols=2, height=2 * ENLARGED_HEIGHT, gap=8,
-                         labels=[f"A {a.label}: {a.short(step)}", f"B {b.label}: {b.short(step)}"])  # fmt: skip
+        return filmstrip(
+            frames,
+            cols=2,
+            height=2 * ENLARGED_HEIGHT,
+            gap=8,
+            labels=[f"A {a.label}: {a.short(step)}", f"B {b.label}: {b.short(step)}"],
+        )
 
     def open_enlarged(self) -> None:
         if self.sides is None:
             raise ValueError("open a compared seed first")
         step = int(self.timeline.slider.value)
         self._enlarged = open_enlarged(
-            self.tab.client.gui, "Compare — camera views, A (left) and B (right)",
-            [("Step follows the timeline", self.enlarged_views(step))], on_close=self._enlarged.clear,
-        )  # fmt: skip
+            self.tab.client.gui,
+            "Compare — camera views, A (left) and B (right)",
+            [("Step follows the timeline", self.enlarged_views(step))],
+            on_close=self._enlarged.clear,
+        )
 
     # ------------------------------------------------------------------ refresh
     def refresh(self) -> None:

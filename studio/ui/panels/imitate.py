@@ -115,8 +115,12 @@ class ImitatePanel:
         self.status = gui.add_markdown("")
         self.score_note = gui.add_markdown("")
         self.outcome = gui.add_markdown("")
-        self.enlarge = gui.add_button("Enlarge", icon="arrows-maximize", visible=False,
-                                      hint="the expert frames, the agent's frame and the latent images, large")  # fmt: skip
+        self.enlarge = gui.add_button(
+            "Enlarge",
+            icon="arrows-maximize",
+            visible=False,
+            hint="the expert frames, the agent's frame and the latent images, large",
+        )
         self.expert_strip = gui.add_image(np.full((20, 100, 3), 255, np.uint8), label=EXPERT_LABEL,
                                           visible=False)  # fmt: skip
         self.agent_image = gui.add_image(np.full((20, 100, 3), 255, np.uint8), label="Agent's first frame",
@@ -241,8 +245,11 @@ class ImitatePanel:
             return
         planned = self.plan_job.spec.get("expert_episode_id") if self.plan_job is not None else None
         if episode_id != planned and self._frames_of is not None and self.rollout_idle():
-            self._clear_plan(f"Demonstration changed to `{episode_id}`: **Plan** again to see its plan."
-                             if episode_id else "")  # fmt: skip
+            self._clear_plan(
+                f"Demonstration changed to `{episode_id}`: **Plan** again to see its plan."
+                if episode_id
+                else ""
+            )
         self._frames_of = episode_id
         if episode_id is None:
             self.expert_strip.visible = False
@@ -285,16 +292,32 @@ class ImitatePanel:
         images = []
         if self._expert_frames is not None:
             frames = self._expert_frames
-            images.append((f"{EXPERT_LABEL} — {self._frames_of}",
-                           filmstrip(frames, cols=5, height=ENLARGED_HEIGHT,
-                                     labels=[str(i + 1) for i in range(len(frames))])))  # fmt: skip
+            images.append(
+                (
+                    f"{EXPERT_LABEL} — {self._frames_of}",
+                    filmstrip(
+                        frames,
+                        cols=5,
+                        height=ENLARGED_HEIGHT,
+                        labels=[str(i + 1) for i in range(len(frames))],
+                    ),
+                )
+            )
         if self._agent_frame is not None:
             images.append(("Agent's first frame", thumbnail(self._agent_frame, 2 * ENLARGED_HEIGHT)))
         if self._latents is not None:
             lat = self._latents
-            images.append(("Predicted latent trajectory (decoded)",
-                           filmstrip(lat, cols=min(5, len(lat)), height=ENLARGED_HEIGHT,
-                                     labels=[f"t{i + 2}" for i in range(len(lat))])))  # fmt: skip
+            images.append(
+                (
+                    "Predicted latent trajectory (decoded)",
+                    filmstrip(
+                        lat,
+                        cols=min(5, len(lat)),
+                        height=ENLARGED_HEIGHT,
+                        labels=[f"t{i + 2}" for i in range(len(lat))],
+                    ),
+                )
+            )
         return images
 
     def open_enlarged(self) -> None:
