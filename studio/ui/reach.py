@@ -231,6 +231,16 @@ class HeightRules:
         return max(LIFT_Z, float(ee[2]))
 
 
+def down_height(
+    model: SceneModel, rules: HeightRules, poses: np.ndarray, ee: np.ndarray, gripper: float
+) -> tuple[float, str]:
+    """Where Down sends the grasp point from ``ee`` (with the gripper command ``gripper``), and why."""
+    objects = model.object_positions(poses)
+    held = rules.held(ee, gripper, objects)
+    below = model.cast(poses, ee, (0.0, 0.0, -1.0), skip=frozenset({held} if held else ()))
+    return rules.down(ee, gripper, objects, None if below is None else float(below.point[2]))
+
+
 def object_label(body: str) -> str:
     """How the status line names a body (``obj_cube`` → ``cube``)."""
     return body[4:] if body.startswith("obj_") else body

@@ -34,6 +34,7 @@ from studio.ui.reach import (
     HeightRules,
     SceneModel,
     clip_to_workspace,
+    down_height,
     object_label,
     path_targets,
 )
@@ -533,10 +534,7 @@ class TeleopPanel:
         if which == "Up":
             z, why = rules.up(ee), "up to carrying height"
         else:
-            objects = model.object_positions(poses)
-            held = rules.held(ee, self._gripper, objects)
-            below = model.cast(poses, ee, (0.0, 0.0, -1.0), skip=frozenset({held} if held else ()))
-            z, why = rules.down(ee, self._gripper, objects, None if below is None else float(below.point[2]))
+            z, why = down_height(model, rules, poses, ee, self._gripper)
         self.reach(np.array([start[0], start[1], z]))
         self.status.content = f"{which}: {why} (grasp point to {100 * z:.1f} cm)."
 
