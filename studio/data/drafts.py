@@ -169,12 +169,12 @@ class RecordingDrafts:
             try:
                 header = self.header(d.name)
                 chunks = self._chunks(d.name)
-            except DraftError:
-                continue
+                updated = max(
+                    [p.stat().st_mtime for _, _, p in chunks], default=float(header.get("created", 0.0))
+                )
+            except (DraftError, FileNotFoundError):
+                continue  # dropped (or just saved and cleaned up) while it was being listed
             steps = sum(n for _, n, _ in chunks)
-            updated = max(
-                [p.stat().st_mtime for _, _, p in chunks], default=float(header.get("created", 0.0))
-            )
             out.append(DraftInfo(d.name, header, steps, updated))
         return sorted(out, key=lambda i: -i.updated)
 

@@ -61,3 +61,23 @@ def test_a_fork_draft_needs_the_store_for_its_prefix(tmp_path):
     assert drafts.next_step("d-4") == 12  # its own chunks start after the rollout's ticks
     with pytest.raises(DraftError, match="needs the store"):
         drafts.load("d-4")
+
+
+def test_listing_skips_a_draft_discarded_while_it_is_read(tmp_path, monkeypatch):
+    """The panel lists drafts twice a second while a saved recording's draft is being cleaned up: a chunk gone
+    between the directory listing and its stat is a draft that is going away, not an error."""
+    drafts = RecordingDrafts(tmp_path)
+    drafts.create("d-gone", HEADER)
+    drafts.append("d-gone", 0, *chunk(0, 3))
+    drafts.create("d-kept", HEADER)
+    drafts.append("d-kept", 0, *chunk(0, 2))
+    listed = RecordingDrafts._chunks
+
+    def listed_then_discarded(self, draft_id):
+        found = listed(self, draft_id)
+        if draft_id == "d-gone":
+            self.discard(draft_id)
+        return found
+
+    monkeypatch.setattr(RecordingDrafts, "_chunks", listed_then_discarded)
+    assert [d.id for d in drafts.drafts()] == ["d-kept"]
