@@ -265,3 +265,40 @@ def test_foreign_dataset_without_studio_features(tmp_path, source):
     (demo,) = import_lerobot(EpisodeStore(tmp_path / "b"), root, task=T1, episodes=[0])
     assert (demo.role, demo.embodiment, demo.source, demo.num_steps) == ("expert", "human", "import", 0)
     assert demo.extra["camera_nominal"] and demo.extra["lerobot"]["episode_index"] == 0
+
+
+def test_a_failure_while_storing_removes_the_episodes_already_added(tmp_path, source, monkeypatch):
+    store, _ = source
+    export_lerobot(store, tmp_path / "lr")
+    dest = EpisodeStore(tmp_path / "b")
+    real_add, calls = dest.add_episode, []
+
+    def add_then_fail(ep, **kwargs):
+        calls.append(ep.meta.id)
+        if len(calls) == 3:
+            raise OSError("disk full")
+        return real_add(ep, **kwargs)
+
+    monkeypatch.setattr(dest, "add_episode", add_then_fail)
+    with pytest.raises(OSError, match="disk full"):
+        import_lerobot(dest, tmp_path / "lr")
+    assert len(calls) == 3 and dest.episodes() == [] and dest.check().ok
+
+
+def test_exports_of_earlier_versions_still_import(tmp_path, source):
+    """Earlier exports named the studio's columns observation.gripper_cmd / .time / .frame_rendered (float64)."""
+    store, metas = source
+    root = tmp_path / "lr"
+    export_lerobot(store, root)
+    info = json.loads((root / INFO_PATH).read_text())
+    old = {"osvi.gripper_cmd": "observation.gripper_cmd", "osvi.time": "observation.time"}
+    old["osvi.frame_rendered"] = "observation.frame_rendered"
+    info["features"] = {old.get(k, k): v for k, v in info["features"].items()}
+    (root / INFO_PATH).write_text(json.dumps(info))
+    _rewrite_data(root, lambda t: t.rename_columns([old.get(c, c) for c in t.column_names]))
+    assert validate_dataset(root) == []
+    imported = import_lerobot(EpisodeStore(tmp_path / "b"), root)
+    for before, after in zip(metas, imported):
+        a, b = store.load(before.id), EpisodeStore(tmp_path / "b").load(after.id)
+        np.testing.assert_array_equal(b.frame_steps, a.frame_steps)
+        np.testing.assert_array_equal(b.arrays["time"], a.arrays["time"])

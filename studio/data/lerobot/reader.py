@@ -361,7 +361,7 @@ def store_plan(store: EpisodeStore, plan: ImportPlan) -> tuple[list[EpisodeMeta]
     try:
         for ep in fresh:
             added.append(store.add_episode(ep))
-    except Exception:
+    except BaseException:  # an interrupt too: all or none
         for meta in added:
             store.delete_episode(meta.id)
         raise
