@@ -20,6 +20,11 @@ Frames are decoded once per episode and training size into ``cache/frames/<H>x<W
 cache file stays valid as long as its episode exists; building a dataset decodes the episodes that have
 no cache file yet and removes the files of deleted episodes. :meth:`PairDataset.fingerprint` changes
 whenever the set of episodes (or the image size) does.
+
+Which episodes make the pairs — successful (or unknown-outcome) episodes of the split's tasks, agents with their
+recorded states, the validation hold-out — is decided in one place, :func:`select_task`, which both
+:class:`PairDataset` and :func:`count_pairs` (the pair count the studio shows before anything trains, with the
+reasons episodes are left out) call.
 """
 
 from __future__ import annotations
@@ -84,6 +89,226 @@ class _Selection:
     sources: tuple[str, ...]
 
 
+@dataclass(frozen=True)
+class TaskSelection:
+    """One task's episodes as the pairs of a split use them, and those left out with the reason.
+
+    Attributes:
+        task: the task name.
+        experts, agents: the episodes paired (every expert with every agent) in the split asked for.
+        val_experts, val_agents: how many usable episodes the validation hold-out took (``train``) or left to
+            training (``val``); 0 for ``test``.
+        failed_experts, failed_agents: episodes whose success predicate said they failed.
+        stateless_agents: agent episodes stored without their recorded states (nothing to learn a path from).
+    """
+
+    task: str
+    experts: tuple[EpisodeMeta, ...]
+    agents: tuple[EpisodeMeta, ...]
+    val_experts: int = 0
+    val_agents: int = 0
+    failed_experts: int = 0
+    failed_agents: int = 0
+    stateless_agents: int = 0
+
+    @property
+    def pairs(self) -> int:
+        return len(self.experts) * len(self.agents)
+
+
+def select_task(
+    store: EpisodeStore, spec: SplitSpec, split: str, task: str, selection: _Selection
+) -> TaskSelection:
+    """The episodes of ``task`` that make ``split``'s pairs (see :class:`PairDataset`), with what is left out."""
+
+    def side(roles: tuple[str, ...], embodiments: tuple[str, ...] | None) -> list[EpisodeMeta]:
+        return store.catalog.episodes(
+            task=task, role=list(roles), embodiment=embodiments, source=list(selection.sources)
+        )
+
+    all_experts = side(selection.expert_roles, selection.expert_embodiments)
+    all_agents = side(selection.agent_roles, selection.agent_embodiments)
+    experts = [m for m in all_experts if m.success is not False]
+    ok_agents = [m for m in all_agents if m.success is not False]
+    agents = [m for m in ok_agents if m.has_arrays]
+    ok_experts, stateless = len(experts), len(ok_agents) - len(agents)
+    val_e = val_a = 0
+    if split in ("train", "val"):
+        held_e = validation_ids([m.id for m in experts], spec.val_fraction)
+        held_a = validation_ids([m.id for m in agents], spec.val_fraction)
+        keep = split == "val"
+        kept_e = [m for m in experts if (m.id in held_e) == keep]
+        kept_a = [m for m in agents if (m.id in held_a) == keep]
+        val_e, val_a = len(experts) - len(kept_e), len(agents) - len(kept_a)
+        experts, agents = kept_e, kept_a
+    return TaskSelection(
+        task,
+        tuple(experts),
+        tuple(agents),
+        val_experts=val_e,
+        val_agents=val_a,
+        failed_experts=len(all_experts) - ok_experts,
+        failed_agents=len(all_agents) - len(ok_agents),
+        stateless_agents=stateless,
+    )
+
+
+def _plural(n: int, word: str, many: str | None = None) -> str:
+    return f"{n} {word if n == 1 else (many or word + 's')}"
+
+
+def _short(task: str) -> str:
+    return task.split("/", 1)[-1]
+
+
+@dataclass(frozen=True)
+class PairCount:
+    """How many training pairs a store gives a split's tasks, and why episodes are left out (:func:`count_pairs`).
+
+    Attributes:
+        tasks: one :class:`TaskSelection` per training task, for the ``train`` split.
+        held_out: episodes stored for each of the split's held-out tasks (never trained on).
+    """
+
+    tasks: tuple[TaskSelection, ...]
+    held_out: dict[str, int]
+
+    @property
+    def pairs(self) -> int:
+        """Training pairs: what ``len(PairDataset(..., "train"))`` is for the same store and selection."""
+        return sum(t.pairs for t in self.tasks)
+
+    @property
+    def val_pairs(self) -> int:
+        """Validation pairs: the held-back episodes of each task paired with each other."""
+        return sum(t.val_experts * t.val_agents for t in self.tasks)
+
+    @property
+    def experts(self) -> int:
+        return sum(len(t.experts) for t in self.tasks)
+
+    @property
+    def agents(self) -> int:
+        return sum(len(t.agents) for t in self.tasks)
+
+    def summary(self) -> str:
+        """One line: the pairs, from how many episodes of which tasks."""
+        used = [t for t in self.tasks if t.pairs]
+        if not used:
+            return "**0 training pairs**"
+        names = ", ".join(_short(t.task) for t in used[:4]) + (
+            f" and {len(used) - 4} more" if len(used) > 4 else ""
+        )
+        val = f" (+ {_plural(self.val_pairs, 'pair')} for validation)" if self.val_pairs else ""
+        return (
+            f"**{_plural(self.pairs, 'training pair')}**{val}: "
+            f"{_plural(sum(len(t.experts) for t in used), 'demonstration')} × "
+            f"{_plural(sum(len(t.agents) for t in used), 'agent episode')} of {names}"
+        )
+
+    def left_out(self) -> list[str]:
+        """Why stored episodes are not in the training pairs, one short phrase per reason."""
+        out = []
+        failed = sum(t.failed_experts + t.failed_agents for t in self.tasks)
+        if failed:
+            out.append(f"{_plural(failed, 'failed episode')} (success unticked)")
+        lonely_e = [t for t in self.tasks if t.experts and not t.agents]
+        if lonely_e:
+            n = sum(len(t.experts) for t in lonely_e)
+            out.append(
+                f"{_plural(n, 'demonstration')} of {', '.join(_short(t.task) for t in lonely_e)}: "
+                "no agent episodes of the task to pair with"
+            )
+        lonely_a = [t for t in self.tasks if t.agents and not t.experts]
+        if lonely_a:
+            n = sum(len(t.agents) for t in lonely_a)
+            out.append(
+                f"{_plural(n, 'agent episode')} of {', '.join(_short(t.task) for t in lonely_a)}: "
+                "no demonstrations of the task to pair with"
+            )
+        stateless = sum(t.stateless_agents for t in self.tasks)
+        if stateless:
+            out.append(f"{_plural(stateless, 'agent episode')} without recorded states")
+        val = sum(t.val_experts + t.val_agents for t in self.tasks)
+        if val:
+            out.append(f"{_plural(val, 'episode')} held back for validation")
+        held = sum(self.held_out.values())
+        if held:
+            names = ", ".join(_short(t) for t, n in self.held_out.items() if n)
+            out.append(f"{_plural(held, 'episode')} of held-out tasks ({names}): never trained on")
+        return out
+
+    def what_to_record(self) -> str | None:
+        """One sentence saying what to record when there is no training pair (None when there is one)."""
+        if self.pairs:
+            return None
+        alone_e = next((t for t in self.tasks if t.experts or t.val_experts), None)
+        alone_a = next((t for t in self.tasks if t.agents or t.val_agents), None)
+        if alone_e is not None:
+            return (
+                f"No training pairs yet: record a successful agent (Panda) episode of {_short(alone_e.task)} in "
+                "Teleop to pair with its demonstration, or collect scripted episodes in Data."
+            )
+        if alone_a is not None:
+            return (
+                f"No training pairs yet: record a successful demonstration (Sawyer or hand) of "
+                f"{_short(alone_a.task)} in Teleop to pair with its agent episode, or collect scripted episodes "
+                "in Data."
+            )
+        return (
+            "No training pairs yet: record a successful demonstration (Sawyer or hand) and a successful agent "
+            "(Panda) episode of the same training task in Teleop, or collect scripted episodes in Data."
+        )
+
+
+def count_pairs(
+    root: str | os.PathLike | EpisodeStore | None = None,
+    *,
+    scene: str = "pick_place",
+    split_spec: SplitSpec | str | os.PathLike | None = None,
+    expert_roles: Sequence[str] = ("expert",),
+    agent_roles: Sequence[str] | None = None,
+    expert_embodiments: Sequence[str] | None = None,
+    agent_embodiments: Sequence[str] | None = None,
+    sources: Sequence[str] = DEFAULT_SOURCES,
+) -> PairCount:
+    """The training pairs :class:`PairDataset` would make of the store (same arguments), without decoding a frame,
+    and the episodes it leaves out with the reason."""
+    store = root if isinstance(root, EpisodeStore) else EpisodeStore(root)
+    spec = _spec_of(scene, split_spec)
+    selection = _selection_of(spec, expert_roles, agent_roles, expert_embodiments, agent_embodiments, sources)
+    tasks = tuple(select_task(store, spec, "train", t, selection) for t in spec.tasks("train"))
+    held = {t: len(store.catalog.episodes(task=t, source=list(sources))) for t in spec.test}
+    return PairCount(tasks, held)
+
+
+def _spec_of(scene: str, split_spec: SplitSpec | str | os.PathLike | None) -> SplitSpec:
+    if isinstance(split_spec, SplitSpec):
+        return split_spec
+    if split_spec is None:
+        return load_split(scene)
+    return load_split(split_spec if isinstance(split_spec, str) else Path(split_spec))
+
+
+def _selection_of(
+    spec: SplitSpec,
+    expert_roles: Sequence[str],
+    agent_roles: Sequence[str] | None,
+    expert_embodiments: Sequence[str] | None,
+    agent_embodiments: Sequence[str] | None,
+    sources: Sequence[str],
+) -> _Selection:
+    if agent_roles is None:
+        agent_roles = ("expert",) if spec.scene in SAME_POOL_SCENES else ("agent",)
+    return _Selection(
+        expert_roles=tuple(expert_roles),
+        agent_roles=tuple(agent_roles),
+        expert_embodiments=None if expert_embodiments is None else tuple(expert_embodiments),
+        agent_embodiments=None if agent_embodiments is None else tuple(agent_embodiments),
+        sources=tuple(sources),
+    )
+
+
 class PairDataset:
     """(expert, agent) pairs of one split, as OSVI-WM training samples (a map-style dataset).
 
@@ -127,42 +352,21 @@ class PairDataset:
             raise ValueError("n_expert, n_agent and path_points must be at least 2 (first and last are kept)")
         self._store = root if isinstance(root, EpisodeStore) else EpisodeStore(root)
         self._episodes_dir = self._store.episodes_dir
-        if isinstance(split_spec, SplitSpec):
-            self.spec = split_spec
-        elif split_spec is None:
-            self.spec = load_split(scene)
-        else:
-            self.spec = load_split(split_spec if isinstance(split_spec, str) else Path(split_spec))
-        if agent_roles is None:
-            agent_roles = ("expert",) if self.spec.scene in SAME_POOL_SCENES else ("agent",)
+        self.spec = _spec_of(scene, split_spec)
         self.split = split
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.n_expert, self.n_agent, self.path_points = n_expert, n_agent, path_points
         self.seed = seed
         self.epoch = 0
-        self._selection = _Selection(
-            expert_roles=tuple(expert_roles),
-            agent_roles=tuple(agent_roles),
-            expert_embodiments=None if expert_embodiments is None else tuple(expert_embodiments),
-            agent_embodiments=None if agent_embodiments is None else tuple(agent_embodiments),
-            sources=tuple(sources),
+        self._selection = _selection_of(
+            self.spec, expert_roles, agent_roles, expert_embodiments, agent_embodiments, sources
         )
         self._progress = progress
         self.cache_dir = self._store.cache_dir / "frames" / f"{self.image_size[0]}x{self.image_size[1]}"
         self._build()
 
     # ------------------------------------------------------------------ building
-    def _side(self, task: str, roles, embodiments, need_arrays: bool) -> list[EpisodeMeta]:
-        metas = self._store.catalog.episodes(
-            task=task, role=list(roles), embodiment=embodiments, source=list(self._selection.sources)
-        )
-        metas = [m for m in metas if m.success is not False]
-        if need_arrays:
-            metas = [m for m in metas if m.has_arrays]
-        return metas
-
     def _build(self) -> None:
-        sel = self._selection
         self.tasks: list[str] = list(self.spec.tasks(self.split))
         episodes: dict[str, EpisodeMeta] = {}
         pairs, pair_tasks = [], []
@@ -175,16 +379,9 @@ class PairDataset:
             return index_of[m.id]
 
         for t, task in enumerate(self.tasks):
-            experts = self._side(task, sel.expert_roles, sel.expert_embodiments, need_arrays=False)
-            agents = self._side(task, sel.agent_roles, sel.agent_embodiments, need_arrays=True)
-            if self.split in ("train", "val"):
-                held_e = validation_ids([m.id for m in experts], self.spec.val_fraction)
-                held_a = validation_ids([m.id for m in agents], self.spec.val_fraction)
-                keep = self.split == "val"
-                experts = [m for m in experts if (m.id in held_e) == keep]
-                agents = [m for m in agents if (m.id in held_a) == keep]
-            e_idx = [idx(m) for m in experts]
-            a_idx = [idx(m) for m in agents]
+            chosen = select_task(self._store, self.spec, self.split, task, self._selection)
+            e_idx = [idx(m) for m in chosen.experts]
+            a_idx = [idx(m) for m in chosen.agents]
             for e in e_idx:
                 for a in a_idx:
                     pairs.append((e, a))
