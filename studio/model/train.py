@@ -46,7 +46,7 @@ import torch.distributed as dist
 
 from studio.model.augment import augment_batch
 from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, expert_indices_of
-from studio.model.config import ModelConfig, RunConfig, TrainConfig
+from studio.model.config import ModelConfig, RunConfig, TrainConfig, steps_for
 from studio.model.demo_task import demo_task_loss, label_table
 from studio.model.guidance import drop_demonstrations
 from studio.model.losses import alpha as alpha_at
@@ -110,9 +110,18 @@ def median_path_depth(source: PairSource, samples: int = 64) -> float:
     return float(np.median(depths))
 
 
+def read_torch_file(path: str | Path, map_location: str | torch.device = "cpu") -> Any:
+    """The contents of a file written by ``torch.save`` — checkpoints, policy files, pretrained encoders — read
+    with ``weights_only=True``: tensors and plain containers only, so a file a user names cannot run code."""
+    from torch.torch_version import TorchVersion
+
+    with torch.serialization.safe_globals([TorchVersion]):
+        return torch.load(path, map_location=map_location, weights_only=True)
+
+
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """Read a checkpoint written by ``train`` and check its format."""
-    ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    ckpt = read_torch_file(path, map_location)
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{path} is not an OSVI-WM checkpoint (format {CHECKPOINT_FORMAT})")
     return ckpt
@@ -347,7 +356,7 @@ def _train(
         cfg.pairs_per_expert,
     )
     per_epoch = plan.batches_per_epoch
-    total = cfg.max_steps if cfg.max_steps > 0 else max(1, math.ceil(cfg.epochs * per_epoch))
+    total = steps_for(cfg, len(train_set))
     model.freeze(cfg.freeze)
     trained = [p for p in model.parameters() if p.requires_grad]
     decay = [p for p in trained if p.ndim >= 2]
@@ -460,7 +469,7 @@ def _train(
 def _load_init(model: OSVIWM, run: RunConfig, init: str | Path, device: torch.device) -> None:
     """Start ``model`` from the weights of the checkpoint or policy file ``init`` (see ``train``), or only its
     encoder from a pretrained encoder (``studio pretrain-encoder``)."""
-    start = torch.load(init, map_location=device, weights_only=False)
+    start = read_torch_file(init, device)
     if is_pretrained_encoder(start):
         try:
             load_pretrained_encoder(model, start, init)

@@ -1,7 +1,8 @@
 """`studio train`: train OSVI-WM on the episode store (the training and validation splits of ``studio.data``).
 
     studio train --config cpu|paper|paper-metaworld --data DIR --out RUN_DIR [--steps N] [--seed S]
-                 [--set model.field=value train.field=value ...] [--restart] [--init CKPT] [--device cpu]
+                 [--set model.field=value train.field=value ...] [--restart] [--init CKPT [--fine-tune]]
+                 [--device cpu]
 
 Re-running the same command after an interruption resumes from ``RUN_DIR/last.pt`` at the step it reached; a
 different ``--steps`` lengthens or shortens the resumed run (its learning-rate schedule follows the new length),
@@ -12,14 +13,21 @@ untrained, the way ``studio quickstart`` trains OSVI-WM). ``--set train.expert_e
 Panda's agent episodes with the simulated hand's demonstrations only (``panda``: the Panda's own demonstrations;
 default: every stored demonstration). Under ``torchrun --nproc_per_node K -m studio.cli
 train ...`` it trains with K data-parallel processes.
+
+``--fine-tune --init POLICY`` continues a trained policy on the store's episodes with the short schedule of
+:func:`studio.model.config.fine_tune_config` (the policy's own network and settings; ``--config`` is not used): the
+studio's *Fine-tune the active policy on my episodes* runs the same :func:`prepare_run`. A batch larger than the
+training pairs is lowered to them, and said; a store without a training pair is refused, with what to record.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass, field
+from typing import Any
 
-from studio.model.config import PRESETS, preset
+from studio.model.config import PRESETS, RunConfig, fine_tune_config, fit_batch, preset
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,6 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="start from this checkpoint's or policy file's weights (same model configuration, or the same "
         "without the world model, which then starts untrained; fresh optimiser)",
     )
+    parser.add_argument(
+        "--fine-tune",
+        action="store_true",
+        help="with --init: continue that policy on these episodes with the short fine-tuning schedule (its own "
+        "network and settings; --config is not used)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -61,6 +75,19 @@ def scene_of(scene_or_split: str) -> str:
 
         return load_split(scene_or_split).scene
     return scene_or_split
+
+
+def _pair_selection(run: RunConfig, scene: str) -> dict[str, Any]:
+    """What selects a run's pairs besides the store: its scene or split file, and whose demonstrations."""
+    return {"scene": scene, "expert_embodiments": run.train.expert_embodiments or None}
+
+
+def count_training_pairs(root, run: RunConfig, scene: str, split_spec=None):
+    """The :class:`~studio.data.training_view.PairCount` of the training pairs ``open_splits`` gives ``run`` (same
+    selection), without decoding a frame; ``split_spec`` (a ``SplitSpec``) replaces the scene's split file."""
+    from studio.data.training_view import count_pairs
+
+    return count_pairs(root, split_spec=split_spec, **_pair_selection(run, scene))
 
 
 def open_splits(root: str, run, scene: str, progress: bool = False):
@@ -75,11 +102,83 @@ def open_splits(root: str, run, scene: str, progress: bool = False):
         n_expert=run.model.n_expert_frames,
         n_agent=run.model.n_agent_frames,
         seed=run.train.seed,
-        scene=scene,
-        expert_embodiments=run.train.expert_embodiments or None,
         progress=progress,
+        **_pair_selection(run, scene),
     )
     return PairDataset(root, "train", **kw), PairDataset(root, "val", **kw)
+
+
+class NoTrainingPairs(ValueError):
+    """The store gives the run's tasks no training pair; the message says what to record."""
+
+
+@dataclass
+class PreparedRun:
+    """A run ready for :func:`studio.model.train.train`: its configuration, data and what was adjusted."""
+
+    run: RunConfig
+    train_set: Any
+    val_set: Any
+    notes: list[str] = field(default_factory=list)
+
+
+def init_config(init: str) -> dict[str, Any]:
+    """The configuration stored in the checkpoint or policy file ``init`` (read without unpickling any code)."""
+    from studio.model.checkpoint_info import read_checkpoint_info
+
+    try:
+        info = read_checkpoint_info(init)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"cannot fine-tune from {init}: {exc}") from None
+    saved = info.get("config")
+    if not isinstance(saved, dict) or not isinstance(saved.get("model"), dict):
+        raise ValueError(f"cannot fine-tune from {init}: it is not an OSVI-WM checkpoint or policy file")
+    return saved
+
+
+def prepare_run(
+    root: str,
+    *,
+    config: str = "cpu",
+    scene: str = "pick_place",
+    overrides: list[str] | None = None,
+    steps: int | None = None,
+    seed: int | None = None,
+    init: str | None = None,
+    fine_tune: bool = False,
+    progress: bool = False,
+) -> PreparedRun:
+    """The configuration and data of a ``studio train`` run (the CLI and the ``train`` job both start here).
+
+    ``fine_tune`` takes the configuration of ``init`` with the fine-tuning schedule for the pairs found
+    (:func:`~studio.model.config.fine_tune_config`), otherwise the preset ``config`` for the scene; then
+    ``overrides``, ``steps`` and ``seed``; then a batch larger than the training pairs is lowered to them (a
+    note says so). Raises :class:`NoTrainingPairs` saying what to record when there is no training pair,
+    ``ValueError`` for a bad override or ``init``.
+    """
+    extra = list(overrides or [])
+    if steps is not None:
+        extra.append(f"train.max_steps={steps}")
+    if seed is not None:
+        extra.append(f"train.seed={seed}")
+    saved: dict[str, Any] | None = None
+    if fine_tune:
+        if init is None:
+            raise ValueError("fine-tuning starts from a policy: name its checkpoint or policy file (--init)")
+        saved = init_config(init)
+        cfg = RunConfig.from_dict(saved).with_overrides(
+            extra
+        )  # the data side: image size, frames, embodiments
+    else:
+        cfg = preset(config, scene_of(scene)).with_overrides(extra)
+    train_set, val_set = open_splits(root, cfg, scene, progress=progress)
+    if len(train_set) == 0:
+        sentence = count_training_pairs(root, cfg, scene).what_to_record()
+        raise NoTrainingPairs(sentence or f"No training pairs in {root}: record or collect episodes first.")
+    if saved is not None:
+        cfg = fine_tune_config(saved, len(train_set), extra)
+    cfg, note = fit_batch(cfg, len(train_set))
+    return PreparedRun(cfg, train_set, val_set, [note] if note else [])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -87,30 +186,30 @@ def run(args: argparse.Namespace) -> int:
 
     from studio.model.train import CheckpointMismatch, train
 
-    overrides = list(args.set)
-    if args.steps is not None:
-        overrides.append(f"train.max_steps={args.steps}")
-    if args.seed is not None:
-        overrides.append(f"train.seed={args.seed}")
+    if args.threads:
+        torch.set_num_threads(args.threads)
     try:
-        cfg = preset(args.config, scene_of(args.scene)).with_overrides(overrides)
+        prepared = prepare_run(
+            args.data,
+            config=args.config,
+            scene=args.scene,
+            overrides=list(args.set),
+            steps=args.steps,
+            seed=args.seed,
+            init=args.init,
+            fine_tune=args.fine_tune,
+            progress=not args.no_progress,
+        )
     except ValueError as exc:
         print(f"studio train: {exc}", file=sys.stderr)
         return 2
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    train_set, val_set = open_splits(args.data, cfg, args.scene, progress=not args.no_progress)
-    if len(train_set) == 0:
-        print(
-            f"studio train: no training pairs in {args.data} (record or collect episodes first)",
-            file=sys.stderr,
-        )
-        return 2
+    for note in prepared.notes:
+        print(f"studio train: {note}", file=sys.stderr)
     try:
         result = train(
-            cfg,
-            train_set,
-            val_set if len(val_set) else None,
+            prepared.run,
+            prepared.train_set,
+            prepared.val_set if len(prepared.val_set) else None,
             args.out,
             device=args.device,
             show_progress=not args.no_progress,

@@ -12,7 +12,8 @@ owns the run directory's bookkeeping:
 * ``metrics.jsonl`` — trimmed on resume to the steps the checkpoint holds (a killed run's later records go);
   a training record every ``log_every`` steps (the step parts averaged over the window, ``lr``, optionally
   ``epoch`` and ``samples_per_s``), a validation record ``{"step", "split": "val", ...}`` every ``val_every``
-  steps and at the end, and with ``log_events`` the start / resume / end events.
+  steps and at the end, and with ``log_events`` the start / resume / end events (an ``end`` with status
+  ``failed`` and the error when a step raised).
 * seeding — step τ's randomness must derive from ``step_seed(seed, τ, rank)``, which the loop hands to the
   step function, so a run resumed from ``last.pt`` retraces an uninterrupted one.
 * after every step: validation (when due), ``progress`` (a dict: step, total_steps, [epoch], loss, lr,
@@ -289,6 +290,10 @@ class TrainingLoop:
                 if stop:
                     status = "cancelled"
                     break
+        except Exception as exc:
+            if main and self.log_events:  # said in the run's own record, not only by whoever ran it
+                self._event("end", status="failed", step=done, error=str(exc)[:500] or type(exc).__name__)
+            raise
         finally:
             if bar is not None:
                 bar.close()
