@@ -260,7 +260,13 @@ class ImitatePanel:
                 n = frames_seen(self.policy_for(self.task_name, self.demonstrator()).path)
             except ValueError:
                 n = 10
-        frames = self.app.store.load_frames(episode_id)
+        try:
+            frames = self.app.store.load_frames(episode_id)
+        except (KeyError, OSError, ValueError) as e:  # deleted meanwhile, or unreadable: say so, show nothing
+            self.expert_strip.visible = False
+            self._expert_frames = None
+            self.status.content = f"Demonstration `{episode_id}` cannot be shown: {e}"
+            return
         idx = expert_indices(len(frames), n)
         self._expert_frames = frames[idx]
         self.expert_strip.image = filmstrip(
