@@ -41,7 +41,12 @@ NOMINAL_FOVY_DEG = 45.0
 
 
 class VideoImportError(ValueError):
-    """A video that cannot be imported; the message says why. Nothing was written."""
+    """A video that cannot be imported; the message says why in one sentence for a person, ``detail`` (if any)
+    what the decoder reported. Nothing was written."""
+
+    def __init__(self, message: str, detail: str | None = None):
+        super().__init__(message)
+        self.detail = detail
 
 
 @dataclass(frozen=True)
@@ -81,7 +86,7 @@ def normalise_frames(frames: np.ndarray, size: tuple[int, int], fit: str) -> np.
     return out
 
 
-def _thin(times: np.ndarray, fps_cap: float | None, min_frames: int) -> np.ndarray:
+def thin_indices(times: np.ndarray, fps_cap: float | None, min_frames: int) -> np.ndarray:
     """Indices keeping at most ``fps_cap`` frames per second (by timestamp), never fewer than min_frames."""
     if fps_cap is None or len(times) < 2:
         return np.arange(len(times))
@@ -132,7 +137,10 @@ def load_human_video(
     try:
         info = video.probe_video(path)
     except video.VideoError as e:
-        raise VideoImportError(f"{name}: not a video file FFmpeg can read ({e})") from e
+        raise VideoImportError(
+            f"{name} is not a video file the studio can read: it may be another kind of file, or damaged.",
+            str(e).replace(f"{path}: ", ""),
+        ) from e
     if info.duration_s is not None:
         if start is not None and start >= info.duration_s:
             raise VideoImportError(
@@ -151,7 +159,10 @@ def load_human_video(
     try:
         decoded = video.read_video(path, start_s=start, end_s=end, max_frames=max_frames)
     except video.VideoError as e:
-        raise VideoImportError(f"{name}: {e}".replace(f"{path}: ", "")) from e
+        raise VideoImportError(
+            f"{name} could not be decoded to the end: it is truncated or corrupt, or longer than it says.",
+            str(e).replace(f"{path}: ", ""),
+        ) from e
     n = len(decoded.frames)
     if n < limits.min_frames:
         where = f" between {start:g} s and {end:g} s" if trim else ""
@@ -219,7 +230,7 @@ def demonstration_from_frames(
         raise VideoImportError(str(e)) from e
     times = np.asarray(times, dtype=np.float64)
     rate = source_fps if source_fps else 30.0
-    keep = _thin(times, fps_cap, min_frames)
+    keep = thin_indices(times, fps_cap, min_frames)
     src = frames[keep]
     times = times[keep] - times[keep[0]]
     out = normalise_frames(src, size, fit)
@@ -325,7 +336,7 @@ def run(args: argparse.Namespace) -> int:
             known_tasks=known,
         )
     except VideoImportError as e:
-        print(f"studio import-video: rejected: {e}", file=sys.stderr)
+        print(f"studio import-video: rejected: {e}" + (f" ({e.detail})" if e.detail else ""), file=sys.stderr)
         return 2
     print(
         f"stored human demonstration {meta.id}: {meta.task}, {meta.num_frames} frames at {meta.fps:.1f} fps"

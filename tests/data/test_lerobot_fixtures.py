@@ -186,3 +186,13 @@ def test_import_help_says_which_features_import_as_what(capsys):
     text = capsys.readouterr().out
     assert "trajectories" in text and "observation.qpos" in text and "demonstrations" in text
     assert "video or an image feature" in text
+
+
+def test_episodes_longer_than_a_demonstration_may_last_are_refused(monkeypatch):
+    from studio.data.lerobot import reader
+    from studio.data.video_import import ImportLimits
+
+    monkeypatch.setattr(reader, "ImportLimits", lambda: ImportLimits(max_duration_s=1.25))
+    with pytest.raises(LeRobotError, match=r"episodes \[1\] are longer than the 1 s"):
+        read_lerobot(FIXTURES / "av1-video", task=PUSH)
+    assert len(read_lerobot(FIXTURES / "av1-video", task=PUSH, episodes=[0]).episodes) == 1

@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import av
 import cv2
 import numpy as np
 import pyarrow as pa
@@ -43,8 +44,13 @@ from studio.data.lerobot.schema import (
 )
 from studio.data.lerobot.validate import as_matrix, read_table, validate_dataset
 from studio.data.store import EpisodeStore
-from studio.data.video import VideoError, read_video
-from studio.data.video_import import NOMINAL_FOVY_DEG, VideoImportError, demonstration_from_frames
+from studio.data.video_import import (
+    NOMINAL_FOVY_DEG,
+    ImportLimits,
+    VideoImportError,
+    demonstration_from_frames,
+    thin_indices,
+)
 from studio.sim.camera import CameraModel
 
 KINDS = ("auto", "trajectories", "demonstrations")
@@ -151,7 +157,19 @@ def read_lerobot(
     data_files = sorted({(e["data/chunk_index"], e["data/file_index"]) for e in all_eps})
     data = read_table([root / info["data_path"].format(chunk_index=c, file_index=f) for c, f in data_files])
     row_of_index = {int(v): i for i, v in enumerate(as_matrix(data.column("index")))}
-    frames_of = _camera_frames(root, info, key, all_eps, data, row_of_index)
+    # Demonstrations keep only the frames they are thinned to (at most fps_cap per second), so that long
+    # episodes of large frames are never held in memory whole.
+    keep = None
+    if kind == "demonstrations":
+        limit = ImportLimits().max_duration_s
+        long = [e["episode_index"] for e in all_eps if e["length"] / fps > limit]
+        if long:
+            raise LeRobotError(
+                f"{root}: episodes {long} are longer than the {limit:.0f} s a demonstration may last; "
+                "leave them out with --episodes"
+            )
+        keep = {e["episode_index"]: thin_indices(np.arange(e["length"]) / fps, fps_cap, 10) for e in all_eps}
+    frames_of = _camera_frames(root, info, key, all_eps, data, row_of_index, keep)
     origin = str(root.resolve())
     out: list[Episode] = []
     for e in all_eps:
@@ -170,7 +188,7 @@ def read_lerobot(
             try:
                 ep = demonstration_from_frames(
                     frames,
-                    np.arange(len(frames)) / fps,
+                    keep[e["episode_index"]] / fps if keep is not None else np.arange(len(frames)) / fps,
                     tasks_of[e["episode_index"]],
                     size=size,
                     fps_cap=fps_cap,
@@ -204,18 +222,27 @@ def _task_of_instruction(text: str) -> str | None:
     return next((t for t in list_tasks() if task_instruction(t) == text), None)
 
 
-def _camera_frames(root: Path, info: dict, key: str, eps: list[dict], data: pa.Table, row_of_index) -> dict:
-    """Each episode's frames of camera ``key`` (one per data row), decoded once per video file."""
+def _camera_frames(
+    root: Path, info: dict, key: str, eps: list[dict], data: pa.Table, row_of_index, keep: dict | None
+) -> dict[int, np.ndarray]:
+    """Each episode's frames of camera ``key``: one per data row, or the rows ``keep[episode]`` (offsets in the
+    episode). Each video file is decoded once, converting only the frames kept."""
     ft = info["features"][key]
     fps = info["fps"]
+    wanted = {
+        e["episode_index"]: keep[e["episode_index"]] if keep is not None else np.arange(e["length"])
+        for e in eps
+    }
     out = {}
     if ft["dtype"] == "image":
-        col = data.column(key).combine_chunks()
-        blobs = col.field("bytes").to_pylist()
+        blobs = data.column(key).combine_chunks().field("bytes").to_pylist()
         for e in eps:
-            lo, hi = row_of_index[e["dataset_from_index"]], row_of_index[e["dataset_to_index"] - 1] + 1
+            lo = row_of_index[e["dataset_from_index"]]
             out[e["episode_index"]] = np.stack(
-                [_decode_image(b, key, e["episode_index"]) for b in blobs[lo:hi]]
+                [
+                    _decode_image(blobs[lo + int(i)], key, e["episode_index"])
+                    for i in wanted[e["episode_index"]]
+                ]
             )
         return out
     h, w = ft["shape"][0], ft["shape"][1]
@@ -224,18 +251,41 @@ def _camera_frames(root: Path, info: dict, key: str, eps: list[dict], data: pa.T
         by_file.setdefault((e[f"videos/{key}/chunk_index"], e[f"videos/{key}/file_index"]), []).append(e)
     for (c, f), file_eps in sorted(by_file.items()):
         path = root / info["video_path"].format(video_key=key, chunk_index=c, file_index=f)
-        try:
-            decoded = read_video(path, size=(h, w))
-        except VideoError as err:
-            raise LeRobotError(f"{path.relative_to(root)}: {err}") from None
+        slots: dict[
+            int, tuple[int, int]
+        ] = {}  # frame of the file -> (episode, position among its kept frames)
         for e in file_eps:
             first = round(e[f"videos/{key}/from_timestamp"] * fps)
-            n = e["length"]
-            if first + n > len(decoded.frames):
+            for j, i in enumerate(wanted[e["episode_index"]]):
+                slots[first + int(i)] = (e["episode_index"], j)
+        got: dict[int, list] = {
+            e["episode_index"]: [None] * len(wanted[e["episode_index"]]) for e in file_eps
+        }
+        last = max(slots) if slots else -1
+        try:
+            with av.open(str(path)) as container:
+                stream = container.streams.video[0]
+                stream.thread_type = "AUTO"
+                t0 = None
+                for n, frame in enumerate(container.decode(stream)):
+                    t = float(frame.time) if frame.time is not None else n / fps
+                    t0 = t if t0 is None else t0
+                    index = round((t - t0) * fps)
+                    if index in slots:
+                        ep_index, j = slots[index]
+                        got[ep_index][j] = frame.to_ndarray(format="rgb24")[:h, :w]
+                    if index >= last:
+                        break
+        except (av.error.FFmpegError, IndexError) as err:
+            raise LeRobotError(f"{path.relative_to(root)}: cannot decode it ({err})") from None
+        for e in file_eps:
+            frames = got[e["episode_index"]]
+            missing = sum(fr is None for fr in frames)
+            if missing:
                 raise LeRobotError(
-                    f"episode {e['episode_index']}: its video has {len(decoded.frames) - first} frames, needs {n}"
+                    f"episode {e['episode_index']}: {missing} of its frames are not in {path.relative_to(root)}"
                 )
-            out[e["episode_index"]] = np.ascontiguousarray(decoded.frames[first : first + n])
+            out[e["episode_index"]] = np.stack(frames)
     return out
 
 
