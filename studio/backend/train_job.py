@@ -4,17 +4,23 @@ The job's spec (:class:`TrainJobSpec`) says what ``studio train`` takes on its c
 (step, loss, learning rate, samples/s, ETA) goes to the job's progress stream after every step;
 checkpoints are announced as artifacts once written; cancelling the job stops training after a
 checkpoint. A re-queued job (its trainer died) resumes from ``run_dir/last.pt`` — the training loop
-resumes by itself from the run directory, with the same configuration and data.
+resumes by itself from the run directory, with the same configuration and data. The configuration and data come
+from :func:`studio.model.train_command.prepare_run`, as for ``studio train``: a batch larger than the training pairs
+is lowered to them (said in the progress message and the result), a store without a pair fails the job with what
+to record, and ``fine_tune`` continues ``init`` with the fine-tuning schedule.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import msgspec
 
 from studio.backend.job_runner import JobContext
+
+_Path = Annotated[str, msgspec.Meta(min_length=1, max_length=4096)]
+_Override = Annotated[str, msgspec.Meta(min_length=3, max_length=512)]
 
 
 class TrainJobSpec(msgspec.Struct, forbid_unknown_fields=True):
@@ -23,54 +29,60 @@ class TrainJobSpec(msgspec.Struct, forbid_unknown_fields=True):
     Attributes:
         data_dir: dataset root (the episode store) the trainer reads.
         run_dir: run directory: checkpoints, metrics and config; resuming continues there.
-        config: preset name (``cpu``, ``paper``, ``paper-metaworld``).
-        overrides: ``section.field=value`` assignments applied to the preset.
-        steps: optimiser steps (None: the preset's epochs).
+        config: preset name (``cpu``, ``paper``, ``paper-metaworld``); not used when fine-tuning.
+        overrides: ``section.field=value`` assignments applied to the preset (or the fine-tuning schedule).
+        steps: optimiser steps (None: the preset's epochs, or the fine-tuning schedule's length).
         seed: seed of every random choice (None: the preset's).
         scene: scene (or split file) selecting the training and validation tasks.
         device: torch device.
         threads: torch CPU threads (None: torch's default).
+        init: a checkpoint or policy file whose weights the run starts from (``studio train --init``).
+        fine_tune: continue ``init`` with the fine-tuning schedule (``studio train --fine-tune``).
     """
 
-    data_dir: str
-    run_dir: str
-    config: str = "cpu"
-    overrides: list[str] = []
-    steps: int | None = None
-    seed: int | None = None
-    scene: str = "pick_place"
-    device: str = "cpu"
-    threads: int | None = None
+    data_dir: _Path
+    run_dir: _Path
+    config: Literal["paper", "paper-metaworld", "cpu"] = "cpu"
+    overrides: Annotated[list[_Override], msgspec.Meta(max_length=64)] = []
+    steps: Annotated[int, msgspec.Meta(ge=1, le=10_000_000)] | None = None
+    seed: Annotated[int, msgspec.Meta(ge=0, le=2**31 - 1)] | None = None
+    scene: _Path = "pick_place"
+    device: Annotated[str, msgspec.Meta(min_length=1, max_length=32)] = "cpu"
+    threads: Annotated[int, msgspec.Meta(ge=1, le=1024)] | None = None
+    init: _Path | None = None
+    fine_tune: bool = False
+
+    def __post_init__(self) -> None:
+        if self.fine_tune and self.init is None:
+            raise ValueError("a fine-tuning job names the policy it starts from (init)")
 
 
 def parse_spec(spec: dict[str, Any]) -> TrainJobSpec:
     try:
         return msgspec.convert(spec, TrainJobSpec)
-    except msgspec.ValidationError as e:
+    except (msgspec.ValidationError, ValueError) as e:
         raise ValueError(f"invalid train job spec: {e}") from None
 
 
 def run_training_job(ctx: JobContext) -> dict[str, Any]:
-    """Train as the spec says; returns how the run ended (status, step, run directory, best validation loss)."""
+    """Train as the spec says; returns how the run ended (status, step, run directory, best validation loss,
+    the batch size used and what was adjusted to the data)."""
     spec = parse_spec(ctx.spec)
     import torch
 
-    from studio.model.config import preset
     from studio.model.train import train
-    from studio.model.train_command import open_splits, scene_of
+    from studio.model.train_command import prepare_run
 
-    overrides = list(spec.overrides)
-    if spec.steps is not None:
-        overrides.append(f"train.max_steps={spec.steps}")
-    if spec.seed is not None:
-        overrides.append(f"train.seed={spec.seed}")
-    cfg = preset(spec.config, scene_of(spec.scene)).with_overrides(overrides)
     if spec.threads:
         torch.set_num_threads(spec.threads)
     ctx.progress(0, message="preparing the training data")
-    train_set, val_set = open_splits(spec.data_dir, cfg, spec.scene)
-    if len(train_set) == 0:
-        raise ValueError(f"no training pairs in {spec.data_dir} (record or collect episodes first)")
+    prepared = prepare_run(
+        spec.data_dir, config=spec.config, scene=spec.scene, overrides=list(spec.overrides), steps=spec.steps,
+        seed=spec.seed, init=spec.init, fine_tune=spec.fine_tune,
+    )  # fmt: skip
+    cfg, train_set, val_set = prepared.run, prepared.train_set, prepared.val_set
+    if prepared.notes:
+        ctx.progress(0, message="; ".join(prepared.notes))
     out = Path(spec.run_dir)
     watched = {name: out / name for name in ("last.pt", "best.pt")}
     seen = {name: _mtime(path) for name, path in watched.items()}
@@ -97,7 +109,7 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
 
     result = train(
         cfg, train_set, val_set if len(val_set) else None, out, device=spec.device, progress=on_progress,
-        cancel=lambda: ctx.cancelled, show_progress=False, resume=True,
+        cancel=lambda: ctx.cancelled, show_progress=False, resume=True, init=spec.init,
     )  # fmt: skip
     announce_new_checkpoints({"best.pt": result.step, "last.pt": result.step})
     return {
@@ -107,6 +119,9 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
         "run_dir": str(result.out_dir),
         "best_val_loss": result.best_val_loss,
         "resumed": ctx.attempt > 1,
+        "pairs": len(train_set),
+        "batch_size": cfg.train.batch_size,
+        "notes": prepared.notes,
     }
 
 
