@@ -37,24 +37,17 @@ def filmstrip(
     cols = max(1, min(cols, len(thumbs)))
     rows = -(-len(thumbs) // cols)
     out = np.full((rows * height + (rows - 1) * gap, cols * tw + (cols - 1) * gap, 3), 255, np.uint8)
+    grow = max(1.0, height / 240)  # labels grow with large frames (the Enlarge modal) to stay readable
+    scale, thick, at = 0.38 * grow, max(1, round(grow)), (round(3 * grow), round(12 * grow))
     for i, t in enumerate(thumbs):
         r, c = divmod(i, cols)
         y, x = r * (height + gap), c * (tw + gap)
-        out[y : y + height, x : x + tw] = t[:, :tw]
+        tile = np.ascontiguousarray(t[:, :tw])  # drawn on its own frame: a long label is cut at its edge
         if labels is not None and i < len(labels) and labels[i]:
-            cv2.putText(
-                out, labels[i], (x + 3, y + 12), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (0, 0, 0), 3, cv2.LINE_AA
-            )
-            cv2.putText(
-                out,
-                labels[i],
-                (x + 3, y + 12),
-                cv2.FONT_HERSHEY_SIMPLEX,
-                0.38,
-                (255, 255, 255),
-                1,
-                cv2.LINE_AA,
-            )
+            font = cv2.FONT_HERSHEY_SIMPLEX
+            cv2.putText(tile, labels[i], at, font, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
+            cv2.putText(tile, labels[i], at, font, scale, (255, 255, 255), thick, cv2.LINE_AA)
+        out[y : y + height, x : x + tw] = tile
     return out
 
 
