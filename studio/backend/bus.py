@@ -14,6 +14,7 @@ malformed publications, so that no input can crash a process.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
 import socket
@@ -62,6 +63,24 @@ def free_loopback_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def endpoint_in_use(endpoint: str) -> bool:
+    """Whether a ``tcp/<host>:<port>`` endpoint of this machine is already listened on (another studio or hub);
+    False for other protocols and for port 0."""
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.rpartition(":")
+    if proto != "tcp" or not port.isdigit() or int(port) == 0:
+        return False
+    host = host.strip("[]") or "0.0.0.0"
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a closed listener's TIME_WAIT is no user
+        try:
+            s.bind((host, int(port)))
+        except OSError as e:
+            return e.errno == errno.EADDRINUSE  # any other failure is for Zenoh to report
+    return False
 
 
 def _check_endpoint(endpoint: str) -> str:

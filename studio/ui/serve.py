@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from dataclasses import replace
 
 from studio.backend import bus
 from studio.backend.stopping import StopSignals
@@ -42,6 +43,21 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"studio serve: {e}", file=sys.stderr)
         return 2
+    bus_note = ""
+    busy = [e for e in config.listen if bus.endpoint_in_use(e)]
+    if busy and not args.listen:
+        # Another studio (or hub) on this machine has the default bus port: listen on a free one, as the web
+        # port does, and say so (workers started by hand must connect there).
+        endpoint = bus.loopback_endpoint(bus.free_loopback_port())
+        config = replace(config, listen=(endpoint,))
+        bus_note = f" — port {bus.DEFAULT_PORT} was taken; start other workers with --connect {endpoint}"
+    elif busy:
+        print(
+            f"studio serve: the bus endpoint {busy[0]} is already in use (another studio or hub on this machine?); "
+            f"pass a free one, e.g. --listen {bus.loopback_endpoint(bus.free_loopback_port())}",
+            file=sys.stderr,
+        )
+        return 1
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"studio serve: serving on {args.host} — other machines can reach this studio", file=sys.stderr)
     try:
@@ -57,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
         else "no workers (waiting for external ones)"
     )
     print(
-        f"OSVI Studio running at {app.url}  (data: {app.data_dir}; bus: {', '.join(config.listen)}; {workers}; "
+        f"OSVI Studio running at {app.url}  (data: {app.data_dir}; bus: {', '.join(config.listen)}{bus_note}; "
+        f"{workers}; "
         "Ctrl+C to stop)",
         flush=True,
     )
