@@ -41,6 +41,11 @@ log = logging.getLogger("studio.ui")
 MAX_POSE_HZ = 60.0
 #: How often panels refresh what they show from jobs, workers and the store.
 REFRESH_HZ = 2.0
+#: How long a notification stays open: an error long enough to read its sentence, other news briefly.
+ERROR_SECONDS = 15.0
+NOTICE_SECONDS = 5.0
+#: Error notifications shown at once: a newer one closes the oldest.
+MAX_ERRORS_SHOWN = 2
 
 
 class TeleopStats:
@@ -97,6 +102,8 @@ class StudioTab:
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"tab{client.client_id}")
         self._actions: list[str] = []  # what run() holds, oldest (the running one) first
         self._actions_lock = threading.Lock()
+        self._notices: dict[str, tuple[Any, float, bool]] = {}  # title -> (handle, closes at, is an error)
+        self._notices_lock = threading.Lock()
         self.pose_pushes = 0
         gui = client.gui
         gui.configure_theme(control_width="large", show_logo=False)
@@ -172,11 +179,27 @@ class StudioTab:
             return tuple(self._actions)
 
     def notify(self, title: str, body: str, error: bool = False, seconds: float | None = None) -> None:
-        with contextlib.suppress(Exception):
-            self.client.add_notification(
-                title, body, color="red" if error else None,
-                auto_close_seconds=seconds if seconds is not None else (None if error else 5.0),
-            )  # fmt: skip
+        """Show a notification that closes by itself (errors after :data:`ERROR_SECONDS`).
+
+        One of the same title replaces the previous one, and at most :data:`MAX_ERRORS_SHOWN` errors are open
+        at once (a newer one closes the oldest), so that repeated failures never pile up."""
+        seconds = seconds if seconds is not None else (ERROR_SECONDS if error else NOTICE_SECONDS)
+        with self._notices_lock:
+            now = time.monotonic()
+            self._notices = {t: n for t, n in self._notices.items() if n[1] > now}  # the rest closed by now
+            closing = [self._notices.pop(title)] if title in self._notices else []
+            if error:
+                errors = sorted((n for n in self._notices.items() if n[1][2]), key=lambda n: n[1][1])
+                for t, _ in errors[: max(0, len(errors) - MAX_ERRORS_SHOWN + 1)]:
+                    closing.append(self._notices.pop(t))
+            for handle, _, _ in closing:
+                with contextlib.suppress(Exception):
+                    handle.remove()
+            with contextlib.suppress(Exception):
+                handle = self.client.add_notification(
+                    title, body, color="red" if error else None, auto_close_seconds=seconds
+                )
+                self._notices[title] = (handle, now + seconds, error)
 
     # ------------------------------------------------------------------ the scene's view mode
     def set_mode(self, mode: str, note: str = "") -> int:

@@ -17,6 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import browser_support as ui
 from browser_support import THROTTLE_RAF
 
+CARRY_TASK = "pick_place/cube->red"
 pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.timeout(900)]
 
 #: Every scene node the browser holds, read from the viewer's own scene tree (found through React's fibers
@@ -134,6 +135,39 @@ def studio(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def rollouts(studio):
+    """Rollouts stored on demand (once per module): ``carry`` grasps the cube, carries it lifted 18 cm to the
+    side of its zone and lets it go there (a failure at the place stage); ``success`` is the oracle's."""
+    from studio.eval.oracle import OraclePlanner
+    from studio.eval.rollout import run_rollout, store_rollout
+    from studio.sim.env import SimEnv
+
+    class Misplaced(OraclePlanner):
+        def plan(self, *args):
+            plan = super().plan(*args)
+            plan.waypoints_world = plan.waypoints_world + np.array([0.0, -0.18, 0.0, 0.0]) * (
+                np.arange(5)[:, None] >= 2
+            )
+            return plan
+
+    made: dict[str, object] = {}
+
+    def get(which: str):
+        if which not in made:
+            with SimEnv("pick_place", "panda", image_size=(120, 160)) as env:
+                planner = Misplaced(env) if which == "carry" else OraclePlanner(env)
+                out = run_rollout(
+                    env, planner, np.zeros((10, 120, 160, 3), np.uint8), CARRY_TASK, 0, n_frames=20
+                )
+            assert out.success == (which == "success"), out.stages
+            made[which] = store_rollout(studio.store, out, expert_episode_id=None, checkpoint_id=None)
+            studio.dataset_changed()
+        return made[which]
+
+    return get
+
+
+@pytest.fixture(scope="module")
 def browser():
     from playwright.sync_api import sync_playwright
 
@@ -213,4 +247,114 @@ def test_switching_scenes_and_robots_leaves_nothing_of_the_previous_scene(studio
         f"{changed:.1%} of the 3D view differs from a fresh tab's (switched.png, fresh.png)"
     )
     fresh.close()
+    page.close()
+
+
+def test_inspect_selects_the_first_listed_rollout_until_one_is_chosen(studio, browser, rollouts, shots):
+    """Failures are listed first, and the list's first entry is the one selected: a failure stored after a
+    success takes the selection (nobody chose the success), a rollout the user picked keeps it."""
+    page, tab = new_page(browser, studio)
+    ins = tab.inspector
+    ok = rollouts("success")
+    ui.open_tab(page, "Inspect", "Every rollout")
+    combo = page.get_by_role("combobox", name="Rollout")
+    ui.wait(
+        lambda: ok.id in combo.input_value(), 30, "the successful rollout shown", lambda: ins.rollout.options
+    )
+    failed = rollouts("carry")
+    ui.wait(lambda: ins.rollout.options[0].startswith(failed.id), 30, "the failure listed first")
+    ui.wait(
+        lambda: combo.input_value().startswith(failed.id),
+        30,
+        "the first listed rollout (the failure) selected",
+        lambda: f"page shows {combo.input_value()!r}; options {ins.rollout.options}",
+    )
+    ui.shot(page, shots / "inspect-first-listed.png", scroll_to="Open")
+    # A choice of the user's stays when the list changes.
+    label = next(o for o in ins.rollout.options if o.startswith(ok.id))
+    ui.choose(page, "Rollout", label, lambda: ins.rollout.value == label, "the success chosen")
+    version = studio.dataset_version
+    studio.dataset_changed()  # the panels refill their lists, as after a new rollout
+    ui.wait(lambda: ins._version == studio.dataset_version > version, 10, "the list refilled")
+    assert combo.input_value() == label and ins.rollout.value == label
+    page.close()
+
+
+def test_a_fork_mid_carry_keeps_the_object_in_the_gripper(studio, browser, rollouts, shots):
+    """Inspect → a failed rollout at a step where the cube is held and lifted → Fork at this step → one drag of
+    the gizmo upwards with the mouse: the cube rises with the gripper, and the saved fork's gripper command stays
+    closed from the fork on."""
+    failed = rollouts("carry")
+    _, _, rolled = studio.store.load_arrays(failed.episode_id)
+    z = rolled["object_poses"][:, :, 2]
+    obj = int(np.argmax(z.max(axis=0) - z[0]))  # the object the rollout carried
+    held = np.flatnonzero((rolled["gripper_cmd"] > 0.5) & (z[:, obj] > z[0, obj] + 0.08))
+    k = int(held[len(held) // 2])  # mid-carry
+    page, tab = new_page(browser, studio)
+    ins, tp = tab.inspector, tab.teleop
+    ui.open_tab(page, "Inspect", "Every rollout")
+    label = next(o for o in ins.rollout.options if o.startswith(failed.id))
+    ui.choose(page, "Rollout", label, lambda: ins.rollout.value == label, "the carrying rollout chosen")
+    ui.click_until_done(
+        page.get_by_role("button", name="Open", exact=True).first,
+        lambda: ui.wait(lambda: ins.record is not None and ins.record.id == failed.id, 90, "the replay"),
+    )
+    ui.wait(lambda: "opening the rollout" not in tab.actions, 120, "every queued Open", lambda: tab.actions)
+    ins.timeline.slider.value = k
+    ui.wait(lambda: f"Step {k} of" in ins.plan_info.content, 30, "the timeline to move")
+    before = {m.id for m in studio.store.episodes()}
+    ui.click_until(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
+    ui.wait(
+        lambda: tp._recording and tab.mode == "teleop" and not tab.actions,
+        60,
+        "the fork session",
+        lambda: ui.teleop_state(tab),
+    )
+    names = tp.info.body_names
+    body = next(i for i, n in enumerate(names) if n.startswith("obj_") and "cube" in n)
+    start = tp.client.poses.wait_until(lambda f: f.step >= k and f.body_count == len(names), 10)
+    assert start is not None and start.gripper > 0.5, "the fork starts with the gripper closed"
+    cube0 = start.poses_array()[body, :3].astype(float)
+    assert np.linalg.norm(cube0 - np.asarray(start.ee_pos)) < 0.05, "the cube is in the gripper at the fork"
+    ui.shot(page, shots / "fork-carry-restored.png")
+
+    # One drag of the gizmo's vertical arrow, upwards, with the mouse.
+    ee = np.asarray(start.ee_pos, dtype=float)
+    x, y = ui.screen_point(page, tab.client, ee + np.array([0.0, 0.0, 0.05]))
+    page.mouse.move(x, y)
+    page.mouse.down()
+    for i in range(1, 21):
+        page.mouse.move(x, y - 4 * i)
+        page.wait_for_timeout(50)
+    page.mouse.up()
+    ui.wait(lambda: tp.drags > 0, 20, "the drag to reach the studio", lambda: ui.teleop_state(tab))
+    ui.wait(
+        lambda: tp.client.latest_pose().ee_pos[2] > ee[2] + 0.03,
+        30,
+        "the gripper to rise",
+        lambda: f"ee {np.round(tp.client.latest_pose().ee_pos, 3)}; {ui.teleop_state(tab)}",
+    )
+    settled = tp.client.latest_pose().step
+    now = tp.client.poses.wait_until(lambda f: f.step >= settled + 25, 10)  # half a second later
+    cube = now.poses_array()[body, :3].astype(float)
+    ui.shot(page, shots / "fork-carry-lifted.png")
+    assert now.gripper > 0.5, "the drag left the gripper closed"
+    assert cube[2] > cube0[2] + 0.02 and np.linalg.norm(cube - np.asarray(now.ee_pos)) < 0.05, (
+        f"the cube fell: at {np.round(cube, 3)}, gripper at {np.round(now.ee_pos, 3)} (fork at {np.round(cube0, 3)})"
+    )
+    ui.click_until_done(
+        page.get_by_role("button", name="Stop & save the fork"),
+        lambda: ui.wait(
+            lambda: tp.status.content.startswith("Saved"),
+            120,
+            "the fork stored",
+            lambda: ui.teleop_state(tab),
+        ),
+    )
+    (new,) = [m for m in studio.store.episodes() if m.id not in before]
+    _, _, arrays = studio.store.load_arrays(new.id)
+    assert new.extra["forked_from"]["step"] == k
+    assert np.all(arrays["gripper_cmd"][k:] > 0.5), (
+        f"the stored gripper command opens at step {k + int(np.argmax(arrays['gripper_cmd'][k:] <= 0.5))}"
+    )
     page.close()

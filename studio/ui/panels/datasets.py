@@ -122,7 +122,8 @@ def counts_table(metas) -> str:
         rows.append(f"| {t} | {_by_source(counts, t, 'expert')} | {_by_source(counts, t, 'agent')} |")
     total = Counter(m.role for m in metas)
     rows.append("")
-    rows.append(f"{len(metas)} episodes: {total.get('expert', 0)} expert, {total.get('agent', 0)} agent.")
+    n = len(metas)
+    rows.append(f"{n} episode{'' if n == 1 else 's'}: {total['expert']} expert, {total['agent']} agent.")
     return "\n".join(rows)
 
 

@@ -77,6 +77,8 @@ class InspectorPanel:
             lambda _: tab.run(tab.teleop.discard_recording, "discarding the recording")
         )
         self._forking = False
+        self._chosen: str | None = None  # the rollout the user picked (else the first listed is selected)
+        self.rollout.on_update(self._on_rollout_chosen)
         for dd in (self.task, self.checkpoint, self.outcome):
             dd.on_update(lambda e: self._fill_rollouts())
         self.open_button.on_click(lambda _: tab.run(self.open_selected, "opening the rollout"))
@@ -92,10 +94,15 @@ class InspectorPanel:
             rows = [r for r in rows if (r.checkpoint_id or "oracle") == ck]
         return sorted(rows, key=lambda r: (r.success, -r.created))
 
+    def _on_rollout_chosen(self, event) -> None:
+        if event.client is not None:
+            self._chosen = self.rollout.value
+
     def _fill_rollouts(self) -> None:
         options = tuple(rollout_label(r) for r in self.rollouts()) or ("(none)",)
         if self.rollout.options != options:
             self.rollout.options = options
+            self.rollout.value = self._chosen if self._chosen in options else options[0]
 
     def refresh(self) -> None:
         forking = self.tab.teleop.is_recording_fork_of(self.record.id if self.record is not None else None)

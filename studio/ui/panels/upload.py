@@ -8,6 +8,7 @@ browser shows the transfer's progress itself; decoding shows a progress bar here
 
 from __future__ import annotations
 
+import logging
 import re
 import tempfile
 from pathlib import Path
@@ -20,9 +21,23 @@ from studio.data.video_import import FIT_MODES, VideoImportError, load_human_vid
 from studio.sim.tasks import list_tasks
 from studio.ui.images import filmstrip
 
+log = logging.getLogger("studio.ui.upload")
+
+#: Uploads keep at most this many frames per second (thinned by timestamp, whole frames only).
+UPLOAD_FPS_CAP = 15.0
+
 HINT = """Upload a video of **a person doing the task** (MP4, WebM, MOV…, up to 2 min). It is checked and
 normalised to the studio's frame size; below you see the **10 frames the model will look at**. Pick the
 task it shows and save it as an expert demonstration for *Imitate*."""
+
+
+def describe_import(name: str, meta) -> str:
+    """What an imported video became, saying so when its frame rate was lowered."""
+    text = f"`{name}`: {meta.num_frames} frames at {meta.fps:.0f} fps"
+    source = float(meta.extra.get("source_fps") or 0.0)
+    if source > 0 and abs(source - meta.fps) > 0.5:
+        text += f" (resampled from the video's {source:.0f} fps: uploads keep at most {UPLOAD_FPS_CAP:.0f} a second)"
+    return f"{text}, {meta.width}×{meta.height}, {meta.extra.get('fit', 'letterbox')}."
 
 
 class UploadPanel:
@@ -66,12 +81,15 @@ class UploadPanel:
             with tempfile.TemporaryDirectory(prefix="studio-upload-") as tmp:
                 path = Path(tmp) / safe
                 path.write_bytes(content)
-                episode = load_human_video(path, self.task.value, fit=self.fit.value)
+                episode = load_human_video(path, self.task.value, fit=self.fit.value, fps_cap=UPLOAD_FPS_CAP)
         except VideoImportError as e:
-            self.progress.visible = False
-            self.status.content = f"**Rejected:** {e}"
-            self.tab.notify("Video rejected", str(e), error=True)
-            return False
+            log.info("upload %s rejected: %s%s", name, e, f" ({e.detail})" if e.detail else "")
+            return self._reject(str(e))
+        except Exception:
+            log.exception("upload %s: the import failed", name)
+            return self._reject(
+                f"{name} could not be imported because of an error in the studio (see its log)."
+            )
         finally:
             self.progress.visible = False
         self.pending = episode
@@ -83,12 +101,14 @@ class UploadPanel:
         self.strip.visible = True
         self.save.disabled = False
         self.drop.disabled = False
-        m = episode.meta
-        self.status.content = (
-            f"`{name}`: {m.num_frames} frames at {m.fps:.0f} fps, {m.width}×{m.height} ({self.fit.value}). "
-            "Check the task above, then **Save**."
-        )
+        self.status.content = f"{describe_import(name, episode.meta)} Check the task above, then **Save**."
         return True
+
+    def _reject(self, sentence: str) -> bool:
+        self.progress.visible = False
+        self.status.content = f"**Rejected:** {sentence}"
+        self.tab.notify("Video rejected", sentence, error=True)
+        return False
 
     def store_pending(self) -> str | None:
         episode = self.pending

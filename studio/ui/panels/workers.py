@@ -28,11 +28,11 @@ class WorkersPanel:
         entries = self.tab.app.hub.directory.workers()
         if not entries:
             return "**No worker is connected.** Teleop, plans, rollouts and training wait for one."
-        rows = ["| kind | worker | host | state | doing | sessions | offers |", "|---" * 7 + "|"]
+        rows = ["| kind | worker | host | state | doing | sessions | offers | up for |", "|---" * 8 + "|"]
         for e in entries:
             st = e.status
             if st is None:
-                rows.append(f"| {e.kind} | `{e.worker}` | ? | joining | | | |")
+                rows.append(f"| {e.kind} | `{e.worker}` | ? | joining | | | | |")
                 continue
             offers = ", ".join(st.job_kinds) or "—"
             if st.unavailable:
@@ -40,11 +40,10 @@ class WorkersPanel:
             doing = st.activity + (f" — job `{st.job}`" if st.job else "")
             rows.append(
                 f"| {e.kind} | `{e.worker}` | {st.host} (pid {st.pid}) | {st.state} | {doing} | {st.sessions} "
-                f"| {offers} |"
+                f"| {offers} | {_ago(st.started_at)} |"
             )
         rows.append("")
-        rows.append(f"{len(entries)} worker(s); up for " + ", ".join(
-            _ago(e.status.started_at) for e in entries if e.status is not None))  # fmt: skip
+        rows.append(f"{len(entries)} worker{'' if len(entries) == 1 else 's'} on the bus.")
         return "\n".join(rows)
 
     def describe_jobs(self) -> str:
