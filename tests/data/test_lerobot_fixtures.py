@@ -18,7 +18,7 @@ import pytest
 from data_fixtures import make_recording
 
 from studio.cli import main
-from studio.data.lerobot import LeRobotError, import_lerobot, validate_dataset
+from studio.data.lerobot import LeRobotError, export_lerobot, import_lerobot, validate_dataset
 from studio.data.lerobot.reader import read_lerobot
 from studio.data.lerobot.validate import as_matrix, read_tasks
 from studio.data.lerobot.writer import _image_stats, _stats
@@ -123,6 +123,18 @@ def test_a_studio_export_edited_by_lerobots_delete_episodes_imports(tmp_path):
         "pick_place/bar->blue",
     ]  # the middle one deleted
     assert all(not m.extra.get("camera_nominal") for m in metas)  # the shared camera of the video's info
+
+    # The same recordings exported here and imported first: LeRobot's edit (re-indexed rows, a re-encoded
+    # video) leaves the same trajectories, which are not stored twice.
+    source = EpisodeStore(tmp_path / "source")
+    for seed, task in enumerate(("pick_place/cube->red", "pick_place/cube->blue", "pick_place/bar->blue")):
+        source.add_episode(
+            make_recording(task=task, seed=seed, steps=30, num_frames=10), role="agent", source="scripted"
+        )
+    export_lerobot(source, tmp_path / "fresh")
+    dest = EpisodeStore(tmp_path / "dest")
+    assert len(import_lerobot(dest, tmp_path / "fresh")) == 3
+    assert import_lerobot(dest, root) == [] and len(dest.episodes()) == 3
 
 
 def test_the_studios_statistics_are_those_lerobot_computes(tmp_path):

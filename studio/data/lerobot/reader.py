@@ -13,8 +13,8 @@
 
 Everything is read and checked before the store is touched; the episodes are then added one by one, and a
 failure removes the ones already added. Each imported episode records its origin in ``extra["lerobot"]``
-(dataset directory, episode index, camera, a SHA-256 of its content); an episode whose content is already
-in the store is not imported again.
+(dataset directory, episode index, camera, a SHA-256 of its content: the data columns, and a demonstration's
+frames); an episode whose content is already in the store is not imported again.
 """
 
 from __future__ import annotations
@@ -299,7 +299,9 @@ def _decode_image(blob: bytes | None, key: str, episode: int) -> np.ndarray:
 
 
 def _content_hash(rows: pa.Table, frames: np.ndarray, kind: str, task: str) -> str:
-    """A SHA-256 of an episode's content: its data columns (not its place in the dataset), frames, kind, task."""
+    """A SHA-256 of an episode's content, not of its place in the dataset: kind, task and data columns, and
+    for demonstrations their frames. A trajectory's full-rate arrays identify it, so a re-encoded video (as
+    LeRobot's editing tools write) is still the same trajectory."""
     h = hashlib.sha256(f"{kind}\n{task}\n".encode())
     for name in sorted(rows.column_names):
         if name in ("index", "episode_index", "task_index"):
@@ -309,7 +311,8 @@ def _content_hash(rows: pa.Table, frames: np.ndarray, kind: str, task: str) -> s
             continue  # image bytes: their decoded pixels are hashed with the frames
         h.update(name.encode())
         h.update(np.ascontiguousarray(as_matrix(col)).tobytes())
-    h.update(np.ascontiguousarray(frames).tobytes())
+    if kind == "demonstrations":
+        h.update(np.ascontiguousarray(frames).tobytes())
     return h.hexdigest()
 
 
