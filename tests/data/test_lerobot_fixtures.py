@@ -208,3 +208,16 @@ def test_episodes_longer_than_a_demonstration_may_last_are_refused(monkeypatch):
     with pytest.raises(LeRobotError, match=r"episodes \[1\] are longer than the 1 s"):
         read_lerobot(FIXTURES / "av1-video", task=PUSH)
     assert len(read_lerobot(FIXTURES / "av1-video", task=PUSH, episodes=[0]).episodes) == 1
+
+
+def test_names_given_as_a_dict_are_accepted(tmp_path):
+    """Many LeRobot datasets name a vector's entries as {"motors": [...]}."""
+    import shutil
+
+    root = tmp_path / "ds"
+    shutil.copytree(FIXTURES / "av1-video", root)
+    info = json.loads((root / "meta/info.json").read_text())
+    info["features"]["observation.state"]["names"] = {"axes": ["x", "y"]}
+    (root / "meta/info.json").write_text(json.dumps(info))
+    assert validate_dataset(root) == []
+    assert len(import_lerobot(EpisodeStore(tmp_path / "store"), root, task=PUSH)) == 2

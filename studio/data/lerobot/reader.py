@@ -362,8 +362,9 @@ def _trajectory(e, rows: pa.Table, names, frames, fps, features, tasks_of, min_f
     task = tasks_of[e["episode_index"]]
     dt = e.get("osvi/control_dt") or 1.0 / fps
     n_objects = arrays["object_poses"].shape[1]
+    env_names = features[names["observation.environment_state"]]["names"]
     object_names = e.get("osvi/object_names") or [
-        n.split(".")[0] for n in (features[names["observation.environment_state"]]["names"] or [])[::7]
+        n.split(".")[0] for n in (env_names if isinstance(env_names, list) else [])[::7]
     ]
     if len(object_names) < n_objects:
         object_names = [f"object{k}" for k in range(n_objects)]

@@ -137,7 +137,7 @@ def validate_dataset(root: str | Path) -> list[str]:
         if not (isinstance(ft["shape"], list) and all(isinstance(s, int) and s > 0 for s in ft["shape"])):
             problems.append(f"feature {name!r} has a bad shape {ft['shape']!r}")
         elif (
-            ft["names"] is not None
+            isinstance(ft["names"], list)  # LeRobot also writes {"motors": [...]} and None
             and ft["dtype"] not in ("video", "image")
             and len(ft["names"]) != ft["shape"][-1]
         ):
