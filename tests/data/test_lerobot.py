@@ -302,3 +302,16 @@ def test_exports_of_earlier_versions_still_import(tmp_path, source):
         a, b = store.load(before.id), EpisodeStore(tmp_path / "b").load(after.id)
         np.testing.assert_array_equal(b.frame_steps, a.frame_steps)
         np.testing.assert_array_equal(b.arrays["time"], a.arrays["time"])
+
+
+def test_without_rendered_rows_the_frames_are_evenly_spaced(tmp_path, source):
+    store, metas = source
+    root = tmp_path / "lr"
+    export_lerobot(store, root, episode_ids=[metas[0].id])
+    none = pa.array(np.zeros(60, dtype=bool))
+    _rewrite_data(
+        root, lambda t: t.set_column(t.column_names.index("osvi.frame_rendered"), "osvi.frame_rendered", none)
+    )
+    (meta,) = import_lerobot(EpisodeStore(tmp_path / "b"), root)
+    ep = EpisodeStore(tmp_path / "b").load(meta.id)
+    np.testing.assert_array_equal(ep.frame_steps, np.round(np.linspace(0, 59, 20)).astype(int))

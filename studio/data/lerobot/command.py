@@ -16,7 +16,7 @@ from studio.data.lerobot.reader import KINDS, read_lerobot, store_plan
 from studio.data.lerobot.schema import VIDEO_CODEC, VIDEO_CRF, VIDEO_GOP, LeRobotError
 from studio.data.lerobot.validate import validate_dataset
 from studio.data.lerobot.writer import CODECS, export_lerobot
-from studio.data.store import EpisodeStore
+from studio.data.store import EpisodeStore, StoreError
 
 
 def parse_task_map(items: Sequence[str] | None) -> dict[str, str]:
@@ -143,7 +143,7 @@ def run_import(args: argparse.Namespace, store_of: Callable[[], EpisodeStore]) -
         )
         store = store_of()
         metas, already = store_plan(store, plan)
-    except (LeRobotError, OSError, json.JSONDecodeError) as e:
+    except (ValueError, OSError, StoreError) as e:  # LeRobotError and JSON errors are ValueErrors
         print(f"studio import lerobot: {e}", file=sys.stderr)
         return 2
     what = "trajectories" if plan.kind == "trajectories" else "demonstration videos"

@@ -332,11 +332,12 @@ def _trajectory(e, rows: pa.Table, names, frames, fps, features, tasks_of, min_f
         elif features[names[feat]]["shape"] == [1]:
             v = v.reshape(T)
         arrays[name] = v
+    steps = np.zeros(0, np.int64)
     if RENDERED in names:
         steps = np.flatnonzero(as_matrix(rows.column(names[RENDERED])).astype(bool).reshape(T)).astype(
             np.int64
         )
-    else:
+    if not len(steps):  # no flag, or no row flagged: evenly spaced frames
         steps = np.unique(np.round(np.linspace(0, T - 1, min(T, min_frames))).astype(np.int64))
     picked = np.ascontiguousarray(frames[steps])
     height, width = picked.shape[1:3]
