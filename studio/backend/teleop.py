@@ -43,7 +43,7 @@ from studio.backend import messages as msg
 from studio.backend.episode_transfer import EpisodeDestination, ShipError, recording_payload, write_durably
 from studio.backend.scene_state import body_names, pose_frame, scene_geometry
 from studio.sim.env import SimEnv, Simulator, make_env
-from studio.sim.recorder import Recorder
+from studio.sim.recorder import Recorder, active_span
 from studio.sim.recording import Recording
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -221,6 +221,7 @@ class TeleopSession:
             self._role = fork.role
             self._extra = {"forked_from": dict(fork.origin)} if fork.origin else {}
             self._draft, self._draft_sent = fork.draft, len(self._recorder.states)
+        self._trim_idle = fork is None
         self._saving = 0
         self._snapshot = self._take_snapshot()
 
@@ -514,6 +515,7 @@ class TeleopSession:
         self._recorder = Recorder(self.env)
         self._recorder.tick()
         self._extra = {}
+        self._trim_idle = True
         self._draft, self._draft_sent = request.draft, 0
         state = self.state("recording")
         self._publish_status(state)
@@ -530,15 +532,21 @@ class TeleopSession:
             )
         env = self.env
         task, seed = self._episode()
+        # A recording started here is stored from just before its first motion to just after its last; one
+        # that continues an episode (a fork, a resumed draft) keeps every tick its draft holds.
+        start, end = active_span(rec.rows, env.control_dt) if self._trim_idle else (0, len(rec))
+        if end - start < MIN_RECORDED_STEPS:
+            start, end = 0, len(rec)
+        rows, states = rec.rows[start:end], rec.states[start:end]
         n_frames = int(
             np.clip(
-                round(len(rec) * env.control_dt / FRAME_PERIOD_S), MIN_RECORDED_STEPS, MAX_RECORDED_FRAMES
+                round(len(rows) * env.control_dt / FRAME_PERIOD_S), MIN_RECORDED_STEPS, MAX_RECORDED_FRAMES
             )
         )
         self._queue_draft()  # the draft holds the whole recording before it is stored
         job = _FinishJob(
-            rec.rows,
-            rec.states,
+            rows,
+            states,
             task,
             int(seed),
             bool(env.success() if success is None else success),

@@ -14,6 +14,35 @@ from studio.sim.env import Simulator
 from studio.sim.physics_state import STATE_SPEC
 from studio.sim.recording import Recording
 
+#: A person's recording is kept from this long before its first motion (seconds) ...
+LEAD_IN_S = 0.2
+#: ... to this long after its last (fingers still opening or closing, objects settling).
+LEAD_OUT_S = 0.5
+#: The grasp point has moved once it is this far (metres) from where the recording started (or ended).
+MOVED_M = 0.01
+
+
+def active_span(rows: list[dict], control_dt: float) -> tuple[int, int]:
+    """The ticks ``[start, end)`` of a recording in which something happened: from LEAD_IN_S before the grasp
+    point first moved (or the gripper command first changed) to LEAD_OUT_S after it last did.
+
+    A person opening the page, reading the panel or reaching for the mouse before the first click is not part
+    of the demonstration; scripted demonstrations start moving at their first tick, and the planner samples its
+    frames evenly over the video, so idle time at either end takes frames from the task itself."""
+    n = len(rows)
+    if n == 0:
+        return 0, 0
+    ee = np.asarray([r["ee_pos_world"] for r in rows], dtype=np.float64)
+    grip = np.asarray([r["gripper_cmd"] for r in rows], dtype=np.float64)
+    from_start = (np.linalg.norm(ee - ee[0], axis=1) > MOVED_M) | (np.abs(grip - grip[0]) > 1e-6)
+    from_end = (np.linalg.norm(ee - ee[-1], axis=1) > MOVED_M) | (np.abs(grip - grip[-1]) > 1e-6)
+    if not from_start.any():
+        return 0, n
+    first = int(np.argmax(from_start))
+    last = n - 1 - int(np.argmax(from_end[::-1]))
+    lead_in, lead_out = round(LEAD_IN_S / control_dt), round(LEAD_OUT_S / control_dt)
+    return max(0, first - lead_in), min(n, last + 1 + lead_out)
+
 
 class Recorder:
     """Collects one episode of ``env``; call :meth:`tick` after reset and after every step."""
