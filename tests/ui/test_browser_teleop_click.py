@@ -9,9 +9,11 @@ arrays: the success box is never touched.
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from studio.bench.click_demo import ClickPerson
@@ -35,8 +37,27 @@ def shots(tmp_path_factory):
     print(f"\nscreenshots: {d}")
 
 
+class _Errors(logging.Handler):
+    """ERROR lines the studio logs while the tests run (the server log a person would read)."""
+
+    def __init__(self):
+        super().__init__(logging.ERROR)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(f"{record.name}: {record.getMessage()}")
+
+
 @pytest.fixture(scope="module")
-def studio(tmp_path_factory):
+def errors():
+    handler = _Errors()
+    logging.getLogger("studio").addHandler(handler)
+    yield handler
+    logging.getLogger("studio").removeHandler(handler)
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory, errors):
     with ui.running_studio(tmp_path_factory.mktemp("studio") / "data") as app:
         yield app
 
@@ -88,7 +109,7 @@ def _check_saved(studio, tp, person, before, task: str) -> None:
     print(f"\n{task} by clicking: {len(person.actions)} actions, {seconds:.1f} s simulated")
 
 
-def test_a_pick_and_place_demonstration_by_clicking(studio, page, shots):
+def test_a_pick_and_place_demonstration_by_clicking(studio, page, shots, errors):
     """Record, click the cube, Down, Close, Up, click the red zone, Down, Open, Stop & save: nine actions."""
     tab = ui.tab(studio)
     tp = tab.teleop
@@ -98,6 +119,7 @@ def test_a_pick_and_place_demonstration_by_clicking(studio, page, shots):
     person.demonstrate("pick_place/cube->red")
     _check_saved(studio, tp, person, before, "pick_place/cube->red")
     assert person.actions[:3] == ["Record", "click the cube", "Down"], person.actions
+    assert not errors.lines, f"the server logged errors while recording and saving: {errors.lines}"
 
 
 def test_the_depth_cues_name_the_object_under_the_gripper(studio, page, shots):
@@ -132,3 +154,51 @@ def test_a_push_demonstration_by_clicking(studio, page, shots):
     before = {m.id for m in studio.store.episodes()}
     person.demonstrate("push/red-forward")
     _check_saved(studio, tp, person, before, "push/red-forward")
+
+
+def test_teleop_marks_a_held_out_task(studio, page, shots):
+    """Choosing a held-out task in Teleop says it is held out (a demonstration of it is for Imitate)."""
+    tab = ui.tab(studio)
+    tp = tab.teleop
+    ui.choose(
+        page,
+        "Scene",
+        "pick_place",
+        lambda: tp.info and tp.info.scene == "pick_place" and not tab.actions,
+        "the pick-and-place scene",
+        lambda: ui.teleop_state(tab),
+    )
+    assert not page.get_by_text("is held out").first.is_visible(), "cube->red is a training task"
+    ui.choose(
+        page,
+        "Task",
+        "pick_place/bar->blue",
+        lambda: tp.info and tp.info.task == "pick_place/bar->blue" and not tab.actions,
+        "the held-out task",
+        lambda: ui.teleop_state(tab),
+    )
+    page.get_by_text("is held out").first.wait_for(timeout=20_000)
+    ui.shot(page, shots / "teleop-held-out.png", scroll_to="is held out")
+
+
+def test_an_interrupted_recording_is_offered_open(studio, page, shots):
+    """A draft a stopped studio left behind: its Resume button shows without opening a fold."""
+    states = np.zeros((30, 8))
+    studio.drafts.create(
+        "d-left-behind",
+        {
+            "scene": "pick_place",
+            "robot": "sawyer",
+            "task": "pick_place/cube->red",
+            "seed": 0,
+            "control_dt": 0.01,
+            "role": "expert",
+        },
+    )
+    studio.drafts.append(
+        "d-left-behind", 0, states, {"time": np.arange(30) * 0.01, "gripper_cmd": np.zeros(30)}
+    )
+    resume = page.get_by_role("button", name="Resume", exact=True)
+    resume.wait_for(state="visible", timeout=30_000)
+    ui.shot(page, shots / "teleop-interrupted.png", scroll_to="Interrupted recordings")
+    studio.drafts.discard("d-left-behind")
