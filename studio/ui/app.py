@@ -102,7 +102,7 @@ class StudioTab:
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"tab{client.client_id}")
         self._actions: list[str] = []  # what run() holds, oldest (the running one) first
         self._actions_lock = threading.Lock()
-        self._notices: dict[str, tuple[Any, float, bool]] = {}  # title -> (handle, closes at, is an error)
+        self._notices: dict[str, tuple[Any, float, bool]] = {}  # title -> (handle, shown at, is an error)
         self._notices_lock = threading.Lock()
         self.pose_pushes = 0
         gui = client.gui
@@ -186,12 +186,15 @@ class StudioTab:
         seconds = seconds if seconds is not None else (ERROR_SECONDS if error else NOTICE_SECONDS)
         with self._notices_lock:
             now = time.monotonic()
-            self._notices = {t: n for t, n in self._notices.items() if n[1] > now}  # the rest closed by now
+            # Replace the same title's notification, and close the oldest errors beyond the limit. One that
+            # closed by itself already is harmless to close again: the browser's timer is the one that counts.
             closing = [self._notices.pop(title)] if title in self._notices else []
             if error:
                 errors = sorted((n for n in self._notices.items() if n[1][2]), key=lambda n: n[1][1])
                 for t, _ in errors[: max(0, len(errors) - MAX_ERRORS_SHOWN + 1)]:
                     closing.append(self._notices.pop(t))
+            for t in [t for t, n in self._notices.items() if not n[2] and n[1] < now - 60.0]:
+                del self._notices[t]  # long closed news: nothing to replace any more
             for handle, _, _ in closing:
                 with contextlib.suppress(Exception):
                     handle.remove()
@@ -199,7 +202,7 @@ class StudioTab:
                 handle = self.client.add_notification(
                     title, body, color="red" if error else None, auto_close_seconds=seconds
                 )
-                self._notices[title] = (handle, now + seconds, error)
+                self._notices[title] = (handle, now, error)
 
     # ------------------------------------------------------------------ the scene's view mode
     def set_mode(self, mode: str, note: str = "") -> int:

@@ -7,6 +7,7 @@ directory (printed at the end).
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -357,4 +358,68 @@ def test_a_fork_mid_carry_keeps_the_object_in_the_gripper(studio, browser, rollo
     assert np.all(arrays["gripper_cmd"][k:] > 0.5), (
         f"the stored gripper command opens at step {k + int(np.argmax(arrays['gripper_cmd'][k:] <= 0.5))}"
     )
+    page.close()
+
+
+def _visible(page, text: str) -> int:
+    return page.get_by_text(text, exact=True).locator("visible=true").count()
+
+
+def test_upload_errors_are_one_sentence_and_error_notifications_close_without_piling_up(
+    studio, browser, shots, tmp_path
+):
+    """Three rejected uploads and two other errors in a row: the rejection reads as a sentence (no decoder
+    exception), one notification per title and at most two errors open at once, and they close by themselves."""
+    from studio.ui import app as app_module
+
+    page, tab = new_page(browser, studio)
+    ui.open_tab(page, "Upload", "Upload a video of")
+    for i in range(3):
+        notes = tmp_path / f"notes{i}.mp4"
+        notes.write_text("meeting notes, definitely not a video\n" * 50)
+        page.locator("input[type=file]").first.set_input_files(str(notes))
+        page.get_by_text(f"notes{i}.mp4 is not a video file the studio can read").first.wait_for(
+            timeout=60_000
+        )
+    page.get_by_text("Video rejected", exact=True).first.wait_for(timeout=30_000)
+    body = page.locator("body").inner_text()
+    assert "Errno" not in body and "InvalidDataError" not in body, "the decoder's exception reached the page"
+    # A replaced notification leaves with a short animation (slow here: animation frames are throttled).
+    ui.wait(
+        lambda: _visible(page, "Video rejected") == 1, 10, "one notification for three rejections of a kind"
+    )
+    tab.notify("Planning failed", "the plan job failed on the sim worker.", error=True)
+    tab.notify("No rollout", "Choose a rollout to open.", error=True)
+    page.get_by_text("No rollout", exact=True).first.wait_for(timeout=30_000)
+    titles = ("Video rejected", "Planning failed", "No rollout")
+    shown = lambda: {t: _visible(page, t) for t in titles}  # noqa: E731
+    ui.wait(lambda: sum(shown().values()) <= 2, 10, "at most two error notifications", shown)
+    assert shown()["No rollout"] == 1 and shown()["Video rejected"] == 0, shown()
+    ui.shot(page, shots / "notifications.png")
+    ui.wait(
+        lambda: not any(_visible(page, t) for t in titles),
+        app_module.ERROR_SECONDS + 20,
+        "the error notifications to close by themselves",
+        shown,
+    )
+    page.close()
+
+
+def test_an_upload_says_its_frame_rate_was_lowered(studio, browser, shots, tmp_path):
+    """A 20 fps video becomes 10 fps (whole frames, at most 15 a second), and the page says so."""
+    from studio.data.video import write_video
+
+    frames = np.full((62, 120, 160, 3), 235, np.uint8)
+    for i in range(62):
+        frames[i, 40:80, 2 * i : 2 * i + 30] = (200, 60, 50)  # a "hand" crossing the view
+    video = tmp_path / "hand20.mp4"
+    write_video(video, frames, fps=20)
+    page, tab = new_page(browser, studio)
+    ui.open_tab(page, "Upload", "Upload a video of")
+    page.locator("input[type=file]").first.set_input_files(str(video))
+    page.get_by_text("The 10 frames the model will see").first.wait_for(timeout=60_000)
+    page.get_by_text("resampled from the video's 20 fps").first.wait_for(timeout=30_000)
+    assert re.search(r"\d+ frames at 10 fps \(resampled from the video's 20 fps", tab.upload.status.content)
+    ui.shot(page, shots / "upload-resampled.png", scroll_to="resampled from")
+    ui.click(page.get_by_role("button", name="Discard upload"))
     page.close()

@@ -101,3 +101,8 @@ def test_error_notifications_close_by_themselves_and_never_pile_up():
     assert [n.title for n in tab.client.shown][-1] == "Episode saved"
     assert tab.client.closing["Episode saved"] == app_module.NOTICE_SECONDS < app_module.ERROR_SECONDS
     assert len(tab.client.shown) == 3
+    # However long ago an error was shown (its browser timer may be paused, e.g. while the pointer is on it),
+    # the next one of its title replaces it.
+    tab._notices = {t: (h, at - 3600.0, e) for t, (h, at, e) in tab._notices.items()}
+    tab.notify("No rollout", "still none", error=True)
+    assert [n.title for n in tab.client.shown].count("No rollout") == 1
