@@ -423,3 +423,21 @@ def test_an_upload_says_its_frame_rate_was_lowered(studio, browser, shots, tmp_p
     ui.shot(page, shots / "upload-resampled.png", scroll_to="resampled from")
     ui.click(page.get_by_role("button", name="Discard upload"))
     page.close()
+
+
+def test_workers_and_data_say_counts_and_ages_as_a_person_would(studio, browser, rollouts, shots):
+    """The Workers tab gives each worker its own age ("2 workers on the bus.", no "up for 40 min, 40 min"), and
+    the Data tab counts episodes in the right number."""
+    page, tab = new_page(browser, studio)
+    ui.open_tab(page, "Workers", "workers on the bus")
+    table = tab.workers.table.content
+    rows = [line for line in table.splitlines() if line.startswith("| sim") or line.startswith("| train")]
+    assert len(rows) == 2 and all(re.search(r"\| \d+\u00a0(s|min|h) \|$", r) for r in rows), table
+    assert "2 workers on the bus." in table and "worker(s)" not in table
+    ui.shot(page, shots / "workers.png")
+    rollouts("success")  # at least one episode
+    n = len(studio.store.episodes())
+    counted = f"{n} episode{'' if n == 1 else 's'}: "
+    ui.open_tab(page, "Data", counted)
+    assert counted in tab.datasets.table.content and "1 episodes" not in tab.datasets.table.content
+    page.close()

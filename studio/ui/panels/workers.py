@@ -9,8 +9,11 @@ HINT = """Workers join the studio's bus from this machine (the embedded default)
 
 
 def _ago(t: float) -> str:
+    """How long ago ``t`` was, kept on one line (a no-break space between number and unit)."""
     s = max(0.0, time.time() - t)
-    return f"{s:.0f} s" if s < 120 else f"{s / 60:.0f} min" if s < 7200 else f"{s / 3600:.1f} h"
+    return (
+        f"{s:.0f}\u00a0s" if s < 120 else f"{s / 60:.0f}\u00a0min" if s < 7200 else f"{s / 3600:.1f}\u00a0h"
+    )
 
 
 class WorkersPanel:
@@ -28,7 +31,10 @@ class WorkersPanel:
         entries = self.tab.app.hub.directory.workers()
         if not entries:
             return "**No worker is connected.** Teleop, plans, rollouts and training wait for one."
-        rows = ["| kind | worker | host | state | doing | sessions | offers | up for |", "|---" * 8 + "|"]
+        rows = [
+            "| kind | worker | host | state | doing | sessions | offers | up\u00a0for |",
+            "|---" * 8 + "|",
+        ]
         for e in entries:
             st = e.status
             if st is None:

@@ -47,7 +47,9 @@ def test_each_worker_row_says_how_long_that_worker_has_been_up():
     )
     text = panel.describe()
     rows = {line.split("|")[2].strip(" `"): line for line in text.splitlines() if "`" in line}
-    assert rows["sim-a"].rstrip(" |").endswith("40 min") and rows["train-a"].rstrip(" |").endswith("30 s")
+    assert rows["sim-a"].rstrip(" |").endswith("40\u00a0min") and rows["train-a"].rstrip(" |").endswith(
+        "30\u00a0s"
+    )
     assert "2 workers on the bus." in text and "min, " not in text
     entries.pop()
     assert "1 worker on the bus." in panel.describe()
