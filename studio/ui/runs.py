@@ -138,6 +138,15 @@ def _parse_jsonl(path: Path) -> list[dict]:
     return out
 
 
+def _read_json(path: Path) -> dict:
+    """A JSON object from a file ({} when it is missing, torn or not an object)."""
+    try:
+        value = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
 def read_metrics(run_dir: Path) -> dict[str, np.ndarray]:
     """Training curves of a run: ``step`` and every logged series (loss, loss_sdtw, loss_wm, lr, ...),
     plus ``val_step`` / ``val_loss_sdtw`` when validation ran. Missing values are NaN."""
@@ -225,14 +234,18 @@ class RunRegistry:
                     scene = checkpoint_scene(f)
                     label = f"run {d.name} — {name}.pt ({scene or 'scene unknown'})"
                     cks.append(Checkpoint(f"{d.name}/{name}", str(f), label, d.name, scene=scene))
-            preset = (d / "spec.json").is_file() and json.loads((d / "spec.json").read_text()).get("config")
+            spec = _read_json(d / "spec.json")
+            preset = "fine-tune" if spec.get("fine_tune") else spec.get("config")
+            # a run cancelled between two training records ended past the last one
+            reached = [int(steps[-1])] if steps else []
+            reached += [int(r["step"]) for r in ends[-1:] if isinstance(r.get("step"), int)]
             out.append(
                 RunInfo(
                     id=d.name,
                     path=d,
                     config=str(preset or "?"),
                     tasks=list(cfg.get("tasks", [])),
-                    step=int(steps[-1]) if steps else 0,
+                    step=max(reached, default=0),
                     total=int(starts[-1]["total_steps"]) if starts and "total_steps" in starts[-1] else None,
                     ended=ends[-1].get("status")
                     if ends and (not starts or ends[-1]["time"] >= starts[-1]["time"])
@@ -242,6 +255,20 @@ class RunRegistry:
                 )
             )
         return out
+
+    def step_seconds(self, config: str, batch_size: int) -> tuple[float, str] | None:
+        """Seconds per optimiser step measured here: the median pace of the newest run of ``config`` (a preset, or
+        ``fine-tune``) at this batch size whose metrics record it, with that run's id; None when no run has."""
+        for run in reversed(self.runs()):
+            train = _read_json(run.path / "config.json").get("config", {}).get("train", {})
+            if run.config != config or train.get("batch_size") != batch_size:
+                continue
+            rows = _read_jsonl(run.path / "metrics.jsonl")
+            rates = [r["samples_per_s"] for r in rows if isinstance(r.get("samples_per_s"), int | float)]
+            rates = [r for r in rates if r > 0]
+            if rates:
+                return batch_size / float(np.median(rates)), run.id
+        return None
 
     def checkpoints(self) -> list[Checkpoint]:
         """Every choice, best first: shipped policies, each run's best and last checkpoints, the oracle."""
