@@ -119,11 +119,23 @@ def visible(page, text: str):
 
 def plan(page, im):
     before = im.plan_job
-    ui.click(page.get_by_role("button", name="Plan", exact=True))
-    job = ui.wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
+    ui.click_until_done(
+        page.get_by_role("button", name="Plan", exact=True),
+        lambda: ui.wait(lambda: im.plan_job is not before, 30, "a new plan job"),
+    )
+    job = im.plan_job
     ui.wait(lambda: job.terminal and job.result is not None, 120, "the plan", lambda: im.status.content)
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     return job
+
+
+def execute(page, im) -> None:
+    """Click Execute (again if the click was lost) until a new rollout is attached."""
+    before = im.rollout
+    ui.click_until_done(
+        page.get_by_role("button", name="Execute", exact=True),
+        lambda: ui.wait(lambda: im.rollout is not before, 30, "a new rollout"),
+    )
 
 
 def share_near(image: np.ndarray, colour, tol: int = 60) -> float:
@@ -138,7 +150,13 @@ def element_pixels(locator) -> np.ndarray:
 
     from PIL import Image
 
-    return np.asarray(Image.open(io.BytesIO(locator.screenshot(timeout=60_000))).convert("RGB"))
+    # Scrolled into view and cut out of a page screenshot: a locator screenshot waits for a page that stands
+    # still, which software WebGL on a loaded machine may not give within a minute.
+    locator.evaluate("e => e.scrollIntoView({block: 'center'})", timeout=60_000)
+    box = locator.bounding_box(timeout=60_000)
+    assert box and box["width"] > 0 and box["height"] > 0, f"the element is not drawn: {box}"
+    shot = locator.page.screenshot(clip=box, timeout=60_000)
+    return np.asarray(Image.open(io.BytesIO(shot)).convert("RGB"))
 
 
 def expert_image(page):
@@ -160,20 +178,19 @@ def test_imitate_shows_the_frames_of_the_demonstration_that_runs(studio, page, s
     open_imitate(page, studio)
     choose_demo(page, im, scripted)
     job = plan(page, im)
-    assert job.spec["expert_episode_id"] == scripted_id
-    page.get_by_text(f"Expert frames the model sees — {scripted_id}").first.wait_for(timeout=60_000)
-    assert im.latent_strip.visible
+    assert job.spec["expert_episode_id"] == scripted_id and im.latent_strip.visible
     shown = element_pixels(expert_image(page))
     assert share_near(shown, BACKGROUND) < 0.05, "the scripted demonstration has no magenta"
     ui.shot(page, shots / "stale-1-scripted-plan.png", scroll_to="Expert frames the model sees")
 
     choose_demo(page, im, blob)
-    page.get_by_text(f"Expert frames the model sees — {blob_id}").first.wait_for(timeout=60_000)
     ui.wait(
         lambda: share_near(element_pixels(expert_image(page)), BACKGROUND) > 0.3,
         60,
         "the page to draw the upload's frames",
     )
+    page.get_by_text(f"Expert frames the model sees — {blob_id}").first.wait_for(timeout=60_000)
+    assert scripted_id not in im.expert_strip.label
     assert not im.latent_strip.visible, "the scripted plan's latent images are not the upload's"
     page.get_by_text("Plan** again").or_(page.get_by_text("Plan again")).first.wait_for(timeout=30_000)
     ui.shot(page, shots / "stale-2-upload-chosen.png", scroll_to="Expert frames the model sees")
@@ -181,11 +198,11 @@ def test_imitate_shows_the_frames_of_the_demonstration_that_runs(studio, page, s
     ui.choose(
         page, "Speed", "as fast as possible", lambda: im.speed.value == "as fast as possible", "the speed"
     )
-    ui.click(page.get_by_role("button", name="Execute", exact=True))
-    rollout = ui.wait(lambda: im.rollout is not None and im.rollout, 30, "the rollout")
+    execute(page, im)
+    rollout = im.rollout
     assert rollout.spec["expert_episode_id"] == blob_id, "Execute runs the chosen demonstration"
-    page.get_by_text(f"Expert frames the model sees — {blob_id}").first.wait_for(timeout=30_000)
     assert share_near(element_pixels(expert_image(page)), BACKGROUND) > 0.3, "the frames shown are what runs"
+    page.get_by_text(f"Expert frames the model sees — {blob_id}").first.wait_for(timeout=30_000)
     ui.shot(page, shots / "stale-3-executing-upload.png", scroll_to="Expert frames the model sees")
     page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
     assert share_near(element_pixels(expert_image(page)), BACKGROUND) > 0.3
@@ -224,9 +241,8 @@ def test_a_meaningless_demonstration_is_flagged_in_imitate_and_in_inspect(studio
     ui.choose(
         page, "Speed", "as fast as possible", lambda: im.speed.value == "as fast as possible", "the speed"
     )
-    before = im.rollout
-    ui.click(page.get_by_role("button", name="Execute", exact=True))
-    rollout = ui.wait(lambda: im.rollout is not before and im.rollout, 30, "the rollout")
+    execute(page, im)
+    rollout = im.rollout
     result = ui.wait(lambda: rollout.result, 180, "the rollout's result", lambda: im.status.content)
     assert result["demo_score"] == score, "the rollout stores the score of its demonstration"
 
@@ -265,15 +281,16 @@ def test_imitate_policy_line_is_short_and_images_enlarge(studio, page, shots):
     line.wait_for(timeout=30_000)
     assert policy.summary[:40] not in line.inner_text()
     assert not page.get_by_text(policy.summary[:40]).first.is_visible()
-    ui.click(page.get_by_text("About this policy"))
-    page.get_by_text(policy.summary[:40]).first.wait_for(timeout=30_000)
+    ui.click_until(page, page.get_by_text("About this policy"), policy.summary[:40])
     time.sleep(1.0)  # the fold opens with an animation: let the browser finish drawing it
     ui.shot(page, shots / "enlarge-1-policy-fold.png", scroll_to="About this policy")
 
     plan(page, im)
-    ui.click(page.get_by_role("button", name="Enlarge"))
     modal = page.locator(".mantine-Modal-content")
-    modal.get_by_text("Imitate — enlarged").first.wait_for(timeout=30_000)
+    ui.click_until_done(
+        page.get_by_role("button", name="Enlarge"),
+        lambda: modal.get_by_text("Imitate — enlarged").first.wait_for(timeout=30_000),
+    )
     images = modal.locator("img")
     ui.wait(lambda: images.count() == 3, 30, "three enlarged images")
     widths = [images.nth(i).bounding_box()["width"] for i in range(3)]
@@ -306,8 +323,9 @@ def test_compare_starts_from_two_policies_of_the_scene_and_makes_missing_demonst
     page.keyboard.press("Escape")
     assert not studio.store.episodes(task=OTHER_HELD_OUT, role="expert")
     cmp.episodes.value = 1
-    ui.click(page.get_by_role("button", name="Start", exact=True))
-    page.get_by_text("making a scripted one of each on a sim worker").first.wait_for(timeout=60_000)
+    ui.click_until(
+        page, page.get_by_role("button", name="Start", exact=True), "making a scripted one of each"
+    )
     assert OTHER_HELD_OUT in cmp.status.content and HELD_OUT not in cmp.status.content.split("stored:")[0]
     ui.shot(page, shots / "compare-1-making-demonstrations.png")
     ui.wait(
@@ -326,9 +344,11 @@ def test_compare_starts_from_two_policies_of_the_scene_and_makes_missing_demonst
     ui.shot(page, shots / "compare-2-finished.png", scroll_to="Per-seed table")
 
     ui.click_until(page, page.get_by_role("button", name="Open side by side"), "Paths: A blue")
-    ui.click(page.get_by_role("button", name="Enlarge"))
     modal = page.locator(".mantine-Modal-content")
-    modal.get_by_text("Compare — camera views").first.wait_for(timeout=30_000)
+    ui.click_until_done(
+        page.get_by_role("button", name="Enlarge"),
+        lambda: modal.get_by_text("Compare — camera views").first.wait_for(timeout=30_000),
+    )
     big = modal.locator("img").first
     ui.wait(lambda: (big.bounding_box() or {}).get("width", 0) > 700, 30, "a large side-by-side view")
     before = np.asarray(cmp._enlarged[0].image).copy()
