@@ -202,3 +202,20 @@ def test_an_interrupted_recording_is_offered_open(studio, page, shots):
     resume.wait_for(state="visible", timeout=30_000)
     ui.shot(page, shots / "teleop-interrupted.png", scroll_to="Interrupted recordings")
     studio.drafts.discard("d-left-behind")
+
+
+def test_keys_nudge_the_gripper(studio, page, shots):
+    """The arrow keys and PageUp nudge the target by the chosen step (viser command hotkeys), as the buttons do."""
+    tab = ui.tab(studio)
+    tp = tab.teleop
+    page.mouse.click(30, 700)  # focus the page (the canvas), not a text field of the panel
+    goals = []
+    for key in ("ArrowRight", "ArrowRight", "PageUp"):
+        before, _ = tp.motion
+        page.keyboard.press(key)
+        ui.wait(
+            lambda before=before: tp.motion[0] > before, 20, f"{key}'s nudge", lambda: ui.teleop_state(tab)
+        )
+        goals.append(tp.motion[1])
+    assert np.allclose(goals[1] - goals[0], [0.01, 0.0, 0.0], atol=1e-6), goals
+    assert np.allclose(goals[2] - goals[1], [0.0, 0.0, 0.01], atol=1e-6), goals

@@ -273,7 +273,7 @@ class TeleopPanel:
             # The last session's picture is another scene: blank until the new session's first frame.
             self.preview.image = np.zeros((*PREVIEW_SIZE, 3), np.uint8)
         self.info = self.client.open(scene, robot, task, seed)
-        self._rest_pending, self._target = True, None
+        self._rest_pending, self._target, self._goal = True, None, None
         self._recording = False
         self._set_recording_ui(False)
         self._streaming = False  # a (re-)opened session streams nothing until the live view asks
@@ -298,7 +298,7 @@ class TeleopPanel:
         self.status.content = f"Restoring {what} on `{self.client.worker}`…"
         self.info = self.client.open(go.scene, go.robot, go.task, go.seed, fork=go.fork)
         self._gripper = float(go.fork.gripper)  # drags keep the episode's gripper (closed on a carry)
-        self._rest_pending, self._target = True, None
+        self._rest_pending, self._target, self._goal = True, None, None
         # Show what the session is (these widgets only reopen the session on a user's change).
         if self.scene.value != go.scene:
             self.scene.value = go.scene
@@ -359,7 +359,7 @@ class TeleopPanel:
         if self._recording:
             self.tab.notify("Recording discarded", "Resetting the scene discarded the unsaved recording.")
         self.info = self.client.reset(task, seed)
-        self._rest_pending, self._target = True, None
+        self._rest_pending, self._target, self._goal = True, None, None
         if self._recording:
             self._drop_draft()
         self._recording = False
@@ -439,6 +439,7 @@ class TeleopPanel:
         if event.client is not None:
             self.drags += 1
             self._path_gen += 1  # a drag takes over from a click's motion
+            self._goal = None
         self.move_to(np.asarray(event.target.position, dtype=np.float64))
 
     def move_to(self, position: np.ndarray) -> int | None:
@@ -474,6 +475,11 @@ class TeleopPanel:
             return np.asarray(self.gizmo.position, dtype=np.float64)
         frame = self.client.latest_pose() if self.client is not None else None
         return np.asarray(frame.ee_pos, dtype=np.float64) if frame is not None else None
+
+    def _motion_base(self) -> np.ndarray | None:
+        """Where the next click, Down/Up or nudge starts from: the goal of the motion under way (so quick
+        presses add up), else the newest target."""
+        return self._goal.copy() if self._goal is not None else self._current_target()
 
     def reach(self, goal: np.ndarray) -> int:
         """Move the target to ``goal`` along a minimum-jerk path (replacing a path under way); returns its id."""
@@ -514,7 +520,7 @@ class TeleopPanel:
         if hit is None:
             self.status.content = "That click hit nothing in the scene: click an object or the table."
             return
-        start = self._current_target()
+        start = self._motion_base()
         if start is None:
             return
         self.clicks += 1
@@ -526,7 +532,7 @@ class TeleopPanel:
     def move_height(self, which: str) -> None:
         """Down: to the grasp height of the object below, the place height of one held, or just above the table;
         Up: to the carrying height."""
-        model, rules, poses, start = self._scene_model, self._rules, self._poses, self._current_target()
+        model, rules, poses, start = self._scene_model, self._rules, self._poses, self._motion_base()
         if model is None or rules is None or poses is None or start is None or self.client is None:
             return
         frame = self.client.latest_pose()
@@ -539,7 +545,7 @@ class TeleopPanel:
         self.status.content = f"{which}: {why} (grasp point to {100 * z:.1f} cm)."
 
     def nudge(self, axis) -> None:
-        start = self._current_target()
+        start = self._motion_base()
         if start is None:
             return
         step = NUDGE_STEPS.get(self.nudge_step.value, 0.01)
@@ -646,7 +652,7 @@ class TeleopPanel:
                                        "control_dt": info.control_dt, "role": role})  # fmt: skip
         try:
             self.client.start_recording(role=role, reset=True, draft=draft)
-            self._rest_pending, self._target = True, None
+            self._rest_pending, self._target, self._goal = True, None, None
         except BaseException:
             self.app.drafts.discard(draft)
             raise
