@@ -10,11 +10,14 @@ more: nothing half-done passes for a result.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import msgspec
 
-from studio.eval.compare import CompareRow, compare, task_list
+from studio.backend.plan_job import checked_checkpoint
+
+if TYPE_CHECKING:
+    from studio.eval.compare import CompareRow
 
 PathText = Annotated[str, msgspec.Meta(min_length=1, max_length=4096)]
 Name = Annotated[str, msgspec.Meta(min_length=1, max_length=200)]
@@ -66,11 +69,18 @@ def run_compare_job(ctx) -> dict:
     Returns the comparison (:meth:`studio.eval.compare.Comparison.to_dict`: ``compare_id``, the labels,
     ``eval_ids``, ``totals``, ``rows`` in table order) with its Markdown table as ``markdown``.
     """
+    from studio.eval.compare import compare, task_list
+
     spec = parse_spec(dict(ctx.spec))
     if ctx.data_dir is None:
         raise ValueError(
             "compare jobs need a worker started with --data-dir (the store with the demonstrations)"
         )
+    spec = msgspec.structs.replace(
+        spec,
+        a=checked_checkpoint(ctx.data_dir, spec.a, "compare"),
+        b=checked_checkpoint(ctx.data_dir, spec.b, "compare"),
+    )
     tasks = task_list(spec.scene, spec.tasks)
     episodes = spec.episodes
     total = episodes * len(tasks)

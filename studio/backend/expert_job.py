@@ -8,28 +8,42 @@ nothing and fails the job with the reason, so the user can pick another seed.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any, Literal
+
+import msgspec
+
+
+class ExpertJobSpec(msgspec.Struct, forbid_unknown_fields=True):
+    """What an ``expert`` job records: the scripted ``robot`` expert on ``task`` with scene ``seed``."""
+
+    task: Annotated[str, msgspec.Meta(min_length=1, max_length=200)]
+    seed: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]
+    robot: Literal["sawyer", "panda", "hand"] = "sawyer"
+
+
+def parse_spec(spec: Any) -> ExpertJobSpec:
+    """The spec as an :class:`ExpertJobSpec`; ``ValueError`` naming what is missing or wrong."""
+    try:
+        return msgspec.convert(spec, ExpertJobSpec)
+    except msgspec.ValidationError as e:
+        raise ValueError(f"invalid expert job spec: {e}") from None
 
 
 def run_expert_job(ctx) -> dict[str, Any]:
-    """Spec: ``task``, ``seed``, ``robot`` (default ``"sawyer"``). Returns the stored episode's id."""
+    """Spec: :class:`ExpertJobSpec`. Returns the stored episode's id."""
     from studio.data.collect import DEFAULT_RECORDER, MIN_FRAMES, RECORDER_OF_SCENE, load_recorder
     from studio.data.store import EpisodeStore
     from studio.eval.planners import process_cached
     from studio.sim.env import default_image_size
     from studio.sim.tasks import get_task
 
-    spec = dict(ctx.spec)
-    missing = [k for k in ("task", "seed") if k not in spec]
-    if missing:
-        raise ValueError(f"expert job spec lacks {missing}")
+    spec = parse_spec(dict(ctx.spec))
     if ctx.data_dir is None:
         raise ValueError(
             "expert jobs need a worker started with --data-dir (the store to add the episode to)"
         )
-    task = get_task(str(spec["task"]))
-    robot = str(spec.get("robot", "sawyer"))
-    seed = int(spec["seed"])
+    task = get_task(spec.task)
+    robot, seed = spec.robot, spec.seed
     record = load_recorder(RECORDER_OF_SCENE.get(task.scene, DEFAULT_RECORDER))
     ctx.progress(0, 2, message=f"scripted {robot} expert on {task.name}, seed {seed}")
     recording = record(task.scene, robot, task.name, seed, default_image_size(task.scene), MIN_FRAMES)

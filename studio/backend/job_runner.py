@@ -23,7 +23,7 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import zenoh
 
@@ -41,6 +41,8 @@ class JobKind:
     handler: str
     requeue_on_worker_loss: bool
     description: str
+    #: ``module:function`` turning a raw spec into the kind's typed, bounded spec (``ValueError`` if it is not one).
+    spec: str | None = None
 
 
 #: Job kinds the studio knows. Their handlers live with the code they drive and are imported lazily.
@@ -50,6 +52,7 @@ JOB_KINDS: dict[str, JobKind] = {
         worker_kind="train",
         handler="studio.backend.train_job:run_training_job",
         requeue_on_worker_loss=True,
+        spec="studio.backend.train_job:parse_spec",
         description="train OSVI-WM; spec: studio.backend.train_job.TrainJobSpec (resumes from run_dir)",
     ),
     "rollout": JobKind(
@@ -57,6 +60,7 @@ JOB_KINDS: dict[str, JobKind] = {
         worker_kind="sim",
         handler="studio.backend.rollout_job:run_rollout_job",
         requeue_on_worker_loss=False,
+        spec="studio.backend.rollout_job:parse_spec",
         description="imitate one expert episode; spec: checkpoint, expert episode, task, seed, replans",
     ),
     "plan": JobKind(
@@ -64,6 +68,7 @@ JOB_KINDS: dict[str, JobKind] = {
         worker_kind="sim",
         handler="studio.backend.plan_job:run_plan_job",
         requeue_on_worker_loss=False,
+        spec="studio.backend.plan_job:parse_spec",
         description="plan (not execute) one imitation; spec as rollout; writes <data>/plans/<job>.npz",
     ),
     "compare": JobKind(
@@ -71,6 +76,7 @@ JOB_KINDS: dict[str, JobKind] = {
         worker_kind="sim",
         handler="studio.backend.compare_job:run_compare_job",
         requeue_on_worker_loss=False,
+        spec="studio.backend.compare_job:parse_spec",
         description="two checkpoints on the same seeded episodes; spec: a, b, tasks, episodes, seed, replan",
     ),
     "expert": JobKind(
@@ -78,6 +84,7 @@ JOB_KINDS: dict[str, JobKind] = {
         worker_kind="sim",
         handler="studio.backend.expert_job:run_expert_job",
         requeue_on_worker_loss=False,
+        spec="studio.backend.expert_job:parse_spec",
         description="record and store one scripted expert demonstration; spec: task, seed, robot",
     ),
     "collect": JobKind(
@@ -85,12 +92,36 @@ JOB_KINDS: dict[str, JobKind] = {
         worker_kind="sim",
         handler="studio.backend.collect_job:run_collect_job",
         requeue_on_worker_loss=True,
+        spec="studio.backend.collect_job:check_spec",
         description="scripted episodes in bulk, as studio collect; spec: studio.backend.collect_job.CollectJobSpec "
         "(re-queued, it makes only the episodes still missing)",
     ),
 }
 
 Handler = Callable[["JobContext"], "dict[str, Any] | None"]
+
+_SPEC_PARSERS: dict[str, Callable[[Any], Any]] = {}
+
+
+def check_spec(kind: str, spec: dict[str, Any]) -> Any:
+    """The typed spec of a job of a :data:`JOB_KINDS` kind (None for another kind, whose handler checks it).
+
+    Raises ``ValueError`` with one line naming what is wrong. The queue checks every submitted spec with it;
+    the handlers check again on the worker (a worker cannot know who sent an assignment), and also that every
+    path the spec names lies in the worker's data directory.
+    """
+    known = JOB_KINDS.get(kind)
+    if known is None or known.spec is None:
+        return None
+    parse = _SPEC_PARSERS.get(kind)
+    if parse is None:
+        try:
+            parse = cast(Callable[[Any], Any], load_handler(known.spec))
+        except HandlerUnavailable as e:
+            bus.log.debug("cannot check %s job specs here: %s", kind, e)
+            return None
+        _SPEC_PARSERS[kind] = parse
+    return parse(spec)
 
 
 class HandlerUnavailable(RuntimeError):
@@ -360,8 +391,10 @@ class JobRunner:
         except JobCancelled as e:
             state, reason = "cancelled", str(e)
         except Exception as e:
-            bus.log.error("job %s failed:\n%s", assign.job, traceback.format_exc())
-            state, reason = "failed", f"{type(e).__name__}: {e}"
+            reason = f"{type(e).__name__}: {e}"
+            bus.log.error("job %s failed: %s", assign.job, reason.splitlines()[0][:500] if reason else "")
+            bus.log.debug("job %s failed:\n%s", assign.job, traceback.format_exc())
+            state = "failed"
         result_msg = None
         if result is not None:
             try:

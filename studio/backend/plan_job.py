@@ -32,6 +32,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 import numpy as np
 
+from studio.backend.spec_paths import checkpoint_path
 from studio.eval.latents import decode_latents, find_decoder
 
 PLANS_DIR = "plans"
@@ -62,6 +63,13 @@ def parse_spec(spec: dict[str, Any]) -> PlanJobSpec:
         return msgspec.convert(spec, PlanJobSpec)
     except msgspec.ValidationError as e:
         raise ValueError(f"invalid plan job spec: {e}") from None
+
+
+def checked_checkpoint(data_dir: Path | None, checkpoint: str, kind: str) -> str:
+    """The spec's checkpoint as the worker loads it: ``"oracle"``, or a file in its data dir (a relative path is
+    taken from there) or a shipped policy; ``SpecPathError`` (a ValueError) for anything else."""
+    resolved = checkpoint_path(data_dir, checkpoint, "checkpoint", kind)
+    return checkpoint if checkpoint == "oracle" or Path(checkpoint).is_absolute() else resolved
 
 
 def expert_indices(n_frames: int, n: int = 10) -> np.ndarray:
@@ -95,9 +103,9 @@ def run_plan_job(ctx) -> dict[str, Any]:
     parsed = parse_spec(dict(ctx.spec))
     if ctx.data_dir is None:
         raise ValueError("plan jobs need a worker started with --data-dir (the store with the demonstration)")
+    checkpoint = checked_checkpoint(ctx.data_dir, parsed.checkpoint, "plan")
     task = get_task(parsed.task)
     robot = parsed.robot
-    checkpoint = parsed.checkpoint
     if checkpoint != "oracle" and not Path(checkpoint).is_file():
         raise ValueError(f"checkpoint {checkpoint} does not exist on worker {ctx.worker}")
     store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))

@@ -13,16 +13,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 import numpy as np
 
-from studio.backend.plan_job import Name, PathText, SceneSeed
-from studio.backend.scene_state import pose_frame
-from studio.data.store import EpisodeStore
-from studio.eval.demo_score import worker_score
-from studio.eval.evaluation import register_checkpoint
-from studio.eval.latents import attach_latent_images
-from studio.eval.planners import load_planner, process_cached
-from studio.eval.rollout import run_rollout, store_rollout
-from studio.sim.env import make_env
-from studio.sim.tasks import get_task
+from studio.backend.plan_job import Name, PathText, SceneSeed, checked_checkpoint
 
 
 class RolloutJobSpec(msgspec.Struct, forbid_unknown_fields=True):
@@ -67,14 +58,27 @@ def run_rollout_job(ctx) -> dict:
     Streams progress (planning, waypoint i of 5, grasp correction, re-planning, outcome) and body poses at ≤ 30 Hz,
     stores the rollout with the demonstration's score (``extra["demo_score"]``) and returns its summary.
     """
+    from studio.backend.scene_state import pose_frame
+    from studio.data.store import EpisodeStore
+    from studio.eval.demo_score import worker_score
+    from studio.eval.evaluation import register_checkpoint
+    from studio.eval.latents import attach_latent_images
+    from studio.eval.planners import load_planner, process_cached
+    from studio.eval.rollout import run_rollout, store_rollout
+    from studio.sim.env import make_env
+    from studio.sim.tasks import get_task
+
     spec = parse_spec(dict(ctx.spec))
-    task = get_task(spec.task)
-    robot = spec.robot or ("sawyer" if task.scene == "metaworld" else "panda")
-    replans = spec.replans
     if ctx.data_dir is None:
         raise ValueError(
             "rollout jobs need a worker started with --data-dir (the store with the demonstration)"
         )
+    spec = msgspec.structs.replace(
+        spec, checkpoint=checked_checkpoint(ctx.data_dir, spec.checkpoint, "rollout")
+    )
+    task = get_task(spec.task)
+    robot = spec.robot or ("sawyer" if task.scene == "metaworld" else "panda")
+    replans = spec.replans
     store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     # One simulator per job, closed by the job's own thread: an EGL context current in one (still living)
     # thread cannot be made current in another, so a simulator shared across job threads fails to render.

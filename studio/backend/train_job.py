@@ -3,7 +3,9 @@
 The job's spec (:class:`TrainJobSpec`) says what ``studio train`` takes on its command line. Progress
 (step, loss, learning rate, samples/s, ETA) goes to the job's progress stream after every step;
 checkpoints are announced as artifacts once written; cancelling the job stops training after a
-checkpoint. A re-queued job (its trainer died) resumes from ``run_dir/last.pt`` — the training loop
+checkpoint. Every path the spec names must lie in the trainer's ``--data-dir`` (a relative one is taken from
+there; ``init`` may also be a shipped policy, :mod:`studio.backend.spec_paths`), else the job fails with one line
+before anything is created. A re-queued job (its trainer died) resumes from ``run_dir/last.pt`` — the training loop
 resumes by itself from the run directory, with the same configuration and data. The configuration and data come
 from :func:`studio.model.train_command.prepare_run`, as for ``studio train``: a batch larger than the training pairs
 is lowered to them (said in the progress message and the result), a store without a pair fails the job with what
@@ -18,6 +20,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 
 from studio.backend.job_runner import JobContext
+from studio.backend.spec_paths import checkpoint_path, inside_data_dir
 
 _Path = Annotated[str, msgspec.Meta(min_length=1, max_length=4096)]
 _Override = Annotated[str, msgspec.Meta(min_length=3, max_length=512)]
@@ -68,6 +71,12 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
     """Train as the spec says; returns how the run ended (status, step, run directory, best validation loss,
     the batch size used and what was adjusted to the data)."""
     spec = parse_spec(ctx.spec)
+    data_dir = inside_data_dir(ctx.data_dir, spec.data_dir, "data_dir", "train")
+    out = inside_data_dir(ctx.data_dir, spec.run_dir, "run_dir", "train")
+    scene = spec.scene
+    if "/" in scene or scene.endswith(".json"):  # a split file, not a scene name
+        scene = str(inside_data_dir(ctx.data_dir, scene, "split file (scene)", "train"))
+    init = None if spec.init is None else checkpoint_path(ctx.data_dir, spec.init, "init", "train")
     import torch
 
     from studio.model.train import train
@@ -77,13 +86,12 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
         torch.set_num_threads(spec.threads)
     ctx.progress(0, message="preparing the training data")
     prepared = prepare_run(
-        spec.data_dir, config=spec.config, scene=spec.scene, overrides=list(spec.overrides), steps=spec.steps,
-        seed=spec.seed, init=spec.init, fine_tune=spec.fine_tune,
+        str(data_dir), config=spec.config, scene=scene, overrides=list(spec.overrides), steps=spec.steps,
+        seed=spec.seed, init=init, fine_tune=spec.fine_tune,
     )  # fmt: skip
     cfg, train_set, val_set = prepared.run, prepared.train_set, prepared.val_set
     if prepared.notes:
         ctx.progress(0, message="; ".join(prepared.notes))
-    out = Path(spec.run_dir)
     watched = {name: out / name for name in ("last.pt", "best.pt")}
     seen = {name: _mtime(path) for name, path in watched.items()}
     previous_step = 0
@@ -109,7 +117,7 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
 
     result = train(
         cfg, train_set, val_set if len(val_set) else None, out, device=spec.device, progress=on_progress,
-        cancel=lambda: ctx.cancelled, show_progress=False, resume=True, init=spec.init,
+        cancel=lambda: ctx.cancelled, show_progress=False, resume=True, init=init,
     )  # fmt: skip
     announce_new_checkpoints({"best.pt": result.step, "last.pt": result.step})
     return {

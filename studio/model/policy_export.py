@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from studio.model.run_files import atomic_save
+from studio.model.run_files import atomic_save, read_torch_file
 
 #: Training-only entries a policy file does not carry.
 TRAINING_ONLY = ("optimizer", "scheduler")
@@ -71,7 +71,7 @@ def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Pat
     atomic_save(policy, out)
     sizes = {"policy_bytes": out.stat().st_size}
     if decoder is not None:
-        dec = torch.load(decoder, map_location="cpu", weights_only=False)
+        dec = read_torch_file(decoder)
         if not isinstance(dec, dict) or dec.get("format") != DECODER_FORMAT:
             raise ValueError(f"{decoder} is not a latent-decoder checkpoint (format {DECODER_FORMAT})")
         small = {k: v for k, v in dec.items() if k not in TRAINING_ONLY}

@@ -37,7 +37,7 @@ from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, v
 from studio.model.config import DecoderConfig, ModelConfig, RunConfig
 from studio.model.decoder import LatentDecoder
 from studio.model.osvi_wm import OSVIWM
-from studio.model.run_files import write_json
+from studio.model.run_files import read_torch_file, write_json
 from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, cosine_schedule, plan_batches
 
 ENCODER_FORMAT = "osvi-wm-encoder/1"
@@ -188,7 +188,7 @@ def pretrain_encoder(
         scheduler.load_state_dict(ckpt["scheduler"])
 
     if resume:
-        loop.resume(lambda path: torch.load(path, map_location=device, weights_only=False), restore)
+        loop.resume(lambda path: read_torch_file(path, device), restore)
     write_json(out / "pretrain_config.json", config)
 
     def state() -> dict[str, Any]:

@@ -1,6 +1,7 @@
 """Run-directory bookkeeping shared by the training loops: atomic files, JSONL metrics, seeds, cancellation.
 
 * ``atomic_save`` / ``write_json``: write to a temporary file and rename, so a kill never leaves a torn file.
+* ``read_torch_file``: read back any file ``torch.save`` wrote (checkpoints, decoders, policies) weights-only.
 * ``append_jsonl`` / ``trim_metrics``: one JSON object per line; on resume, records of steps the checkpoint does
   not contain (work of a killed run) and lines cut short by the kill are dropped.
 * ``step_seed``: the seed of optimiser step τ on a rank, so a resumed run draws the same randomness.
@@ -22,6 +23,15 @@ def atomic_save(obj: Any, path: Path) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(obj, tmp)
     os.replace(tmp, path)
+
+
+def read_torch_file(path: str | Path, map_location: str | torch.device = "cpu") -> Any:
+    """The contents of a file written by ``torch.save`` — checkpoints, decoders, policy files, pretrained encoders —
+    read with ``weights_only=True``: tensors and plain containers only, so a file a user names cannot run code."""
+    from torch.torch_version import TorchVersion
+
+    with torch.serialization.safe_globals([TorchVersion]):
+        return torch.load(path, map_location=map_location, weights_only=True)
 
 
 def write_json(path: Path, obj: Any) -> None:

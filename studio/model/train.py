@@ -54,7 +54,7 @@ from studio.model.losses import waypoint_errors, waypoint_loss, world_model_loss
 from studio.model.osvi_wm import OSVIWM
 from studio.model.pretrain_encoder import is_pretrained_encoder, load_pretrained_encoder
 from studio.model.reversal import reverse_pairs
-from studio.model.run_files import write_json
+from studio.model.run_files import read_torch_file, write_json
 from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, plan_batches
 
 CHECKPOINT_FORMAT = "osvi-wm-checkpoint/1"
@@ -108,15 +108,6 @@ def median_path_depth(source: PairSource, samples: int = 64) -> float:
     idx = np.unique(np.linspace(0, len(source) - 1, min(samples, len(source))).round().astype(int))
     depths = np.concatenate([np.asarray(source[int(i)]["path"])[:, 2] for i in idx])
     return float(np.median(depths))
-
-
-def read_torch_file(path: str | Path, map_location: str | torch.device = "cpu") -> Any:
-    """The contents of a file written by ``torch.save`` — checkpoints, policy files, pretrained encoders — read
-    with ``weights_only=True``: tensors and plain containers only, so a file a user names cannot run code."""
-    from torch.torch_version import TorchVersion
-
-    with torch.serialization.safe_globals([TorchVersion]):
-        return torch.load(path, map_location=map_location, weights_only=True)
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:

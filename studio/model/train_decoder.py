@@ -30,7 +30,7 @@ from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, v
 from studio.model.config import DecoderConfig
 from studio.model.decoder import LatentDecoder
 from studio.model.osvi_wm import OSVIWM
-from studio.model.run_files import write_json
+from studio.model.run_files import read_torch_file, write_json
 from studio.model.train import load_checkpoint, model_from_checkpoint
 from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, cosine_schedule, plan_batches
 
@@ -39,7 +39,7 @@ DECODER_FORMAT = "osvi-wm-decoder/1"
 
 def load_decoder(path: str | Path, device: str | torch.device = "cpu") -> LatentDecoder:
     """A trained decoder in eval mode."""
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    ckpt = read_torch_file(path)
     if not isinstance(ckpt, dict) or ckpt.get("format") != DECODER_FORMAT:
         raise ValueError(f"{path} is not a latent-decoder checkpoint (format {DECODER_FORMAT})")
     decoder = LatentDecoder(ckpt["in_dim"], tuple(ckpt["image_size"]), DecoderConfig(**ckpt["config"]))
@@ -136,7 +136,7 @@ def train_decoder(
         scheduler.load_state_dict(ckpt["scheduler"])
 
     if resume:
-        loop.resume(lambda path: torch.load(path, map_location=device, weights_only=False), restore)
+        loop.resume(lambda path: read_torch_file(path, device), restore)
     write_json(
         out / "decoder_config.json",
         {

@@ -59,7 +59,7 @@ def test_spec_is_validated():
 
 def test_train_job_trains_reports_checkpoints_and_cancels(hub, workers, dataset, tmp_path):
     root, split = dataset
-    workers.start("train", "gpu-1", handlers=(), only_handlers=False)
+    workers.start("train", "gpu-1", "--data-dir", str(tmp_path), handlers=(), only_handlers=False)
     wait_worker(hub.directory, "gpu-1")
     status = hub.directory.get("train", "gpu-1").status
     assert "train" in status.job_kinds, status.unavailable

@@ -74,7 +74,7 @@ def test_two_pairs_train_then_fine_tune_and_an_empty_store_fails_with_what_to_re
         rec = make_recording(task=GREEN, robot="sawyer", seed=3, success=False)
         store.add_episode(rec, role="expert", source="teleop")
     split = _split(tmp_path / "split.json")
-    workers.start("train", "trainer-1", handlers=(), only_handlers=False)
+    workers.start("train", "trainer-1", "--data-dir", str(tmp_path), handlers=(), only_handlers=False)
     wait_worker(hub.directory, "trainer-1")
     client = JobClient(hub.session)
 
