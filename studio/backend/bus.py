@@ -260,6 +260,18 @@ class _RateLimitedLog:
 
 bad_input_log = _RateLimitedLog()
 
+#: Largest request payload a queryable decodes unless it says otherwise (a forked recording can be megabytes).
+MAX_REQUEST_BYTES = 64 << 20
+
+
+def one_line(e: BaseException, *, with_type: bool = False, limit: int = 4000) -> str:
+    """An exception as one line of text (its first line, shortened), for a log line or an error reply."""
+    first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    if with_type or not first:
+        first = f"{type(e).__name__}: {first}" if first else type(e).__name__
+    return first[:limit]
+
+
 M = TypeVar("M", bound=msg.Message)
 
 
@@ -269,7 +281,13 @@ def payload_bytes(zbytes: zenoh.ZBytes | None) -> bytes:
 
 @overload
 def request(
-    session: zenoh.Session, key: str, message: msg.Message, expect: type[M], *, timeout: float = 5.0
+    session: zenoh.Session,
+    key: str,
+    message: msg.Message,
+    expect: type[M],
+    *,
+    timeout: float = 5.0,
+    attachment: bytes | None = None,
 ) -> M: ...
 @overload
 def request(
@@ -279,6 +297,7 @@ def request(
     expect: tuple[type[msg.Message], ...],
     *,
     timeout: float = 5.0,
+    attachment: bytes | None = None,
 ) -> msg.Message: ...
 def request(
     session: zenoh.Session,
@@ -287,14 +306,16 @@ def request(
     expect: type[msg.Message] | tuple[type[msg.Message], ...],
     *,
     timeout: float = 5.0,
+    attachment: bytes | None = None,
 ) -> msg.Message:
-    """Send ``message`` as a query to ``key`` and return the first valid reply.
+    """Send ``message`` as a query to ``key`` and return the first valid reply. ``attachment`` travels beside the
+    message (a teleop session's owner token, see :mod:`studio.backend.sim_worker`).
 
     Raises :class:`RemoteError` if the answer is an ErrorReply and :class:`BusError` if nothing valid
     arrives within ``timeout`` seconds.
     """
     problems: list[str] = []
-    for reply in session.get(key, payload=msg.encode(message), timeout=timeout):
+    for reply in session.get(key, payload=msg.encode(message), timeout=timeout, attachment=attachment):
         if reply.ok is None:
             problems.append(payload_bytes(reply.err.payload).decode("utf-8", "replace"))
             continue
@@ -354,9 +375,20 @@ def reply(query: zenoh.Query, message: msg.Message, key: str | None = None) -> N
     query.reply(key or str(query.key_expr), msg.encode(message))
 
 
+def attachment_bytes(carrier: zenoh.Query | zenoh.Sample) -> bytes:
+    """The attachment of a query or sample (empty without one)."""
+    att = carrier.attachment
+    return b"" if att is None else att.to_bytes()
+
+
 @overload
 def declare_queryable(
-    session: zenoh.Session, key: str, handler: Callable[[M, zenoh.Query], Any], expect: type[M]
+    session: zenoh.Session,
+    key: str,
+    handler: Callable[[M, zenoh.Query], Any],
+    expect: type[M],
+    *,
+    max_bytes: int = ...,
 ) -> zenoh.Queryable: ...
 @overload
 def declare_queryable(
@@ -364,6 +396,8 @@ def declare_queryable(
     key: str,
     handler: Callable[[msg.Message, zenoh.Query], Any],
     expect: tuple[type[msg.Message], ...],
+    *,
+    max_bytes: int = ...,
 ) -> zenoh.Queryable: ...
 @overload
 def declare_queryable(
@@ -371,26 +405,44 @@ def declare_queryable(
     key: str,
     handler: Callable[[msg.Message | None, zenoh.Query], Any],
     expect: None = None,
+    *,
+    max_bytes: int = ...,
 ) -> zenoh.Queryable: ...
 def declare_queryable(
     session: zenoh.Session,
     key: str,
     handler: Callable[[Any, zenoh.Query], Any],
     expect: type[msg.Message] | tuple[type[msg.Message], ...] | None = None,
+    *,
+    max_bytes: int = MAX_REQUEST_BYTES,
 ) -> zenoh.Queryable:
     """A queryable whose handler receives the decoded request (None without payload).
 
     With ``expect`` the request is always decoded (and checked to be one of those types), so the handler
     never receives None. The handler returns a message (the reply), a list of (key, message) replies,
-    None (no reply) or
-    :data:`DEFERRED`. Malformed requests get ``ErrorReply("bad_request")``; a handler that raises gets
-    ``ErrorReply("internal")`` and the exception is logged — the process keeps serving.
+    None (no reply) or :data:`DEFERRED`. Malformed requests, and requests larger than ``max_bytes``, get
+    ``ErrorReply("bad_request")`` and one rate-limited warning line; a handler that raises ``ValueError`` gets
+    ``ErrorReply("bad_request")`` with its message, any other exception ``ErrorReply("internal")``, each logged
+    as one rate-limited line (the traceback at DEBUG) — the process keeps serving.
     """
 
     def on_query(query: zenoh.Query) -> None:
         deferred = False
         try:
             data = payload_bytes(query.payload)
+            if len(data) > max_bytes:
+                bad_input_log.warning(
+                    f"query:{key}",
+                    "rejected a request of %d bytes on %s (at most %d)",
+                    len(data),
+                    key,
+                    max_bytes,
+                )
+                reply(
+                    query,
+                    msg.ErrorReply(code="bad_request", message=f"request larger than {max_bytes} bytes"),
+                )
+                return
             request_msg = None
             if data or expect is not None:
                 try:
@@ -403,9 +455,16 @@ def declare_queryable(
                     return
             try:
                 answer = handler(request_msg, query)
+            except ValueError as e:
+                text = one_line(e)
+                bad_input_log.warning(f"refused:{key}", "refused a request on %s: %s", query.key_expr, text)
+                reply(query, msg.ErrorReply(code="bad_request", message=text))
+                return
             except Exception as e:
-                log.exception("handler for %s failed", query.key_expr)
-                reply(query, msg.ErrorReply(code="internal", message=f"{type(e).__name__}: {e}"[:4000]))
+                text = one_line(e, with_type=True)
+                bad_input_log.warning(f"failed:{key}", "a request on %s failed: %s", query.key_expr, text)
+                log.debug("a request on %s failed", query.key_expr, exc_info=True)
+                reply(query, msg.ErrorReply(code="internal", message=text))
                 return
             if answer is DEFERRED:
                 deferred = True
@@ -463,8 +522,12 @@ def declare_subscriber(
             return
         try:
             callback(message, sample)
-        except Exception:
-            log.exception("subscriber callback for %s failed", sample.key_expr)
+        except Exception as e:
+            text = one_line(e, with_type=True)
+            bad_input_log.warning(
+                f"callback:{key}", "a message on %s could not be handled: %s", sample.key_expr, text
+            )
+            log.debug("a message on %s could not be handled", sample.key_expr, exc_info=True)
 
     return session.declare_subscriber(key, on_sample, **kwargs)
 
