@@ -43,9 +43,14 @@ Seed = Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]
 Pixels = Annotated[int, msgspec.Meta(ge=1, le=4096)]
 Quality = Annotated[int, msgspec.Meta(ge=1, le=100)]
 Role = Literal["expert", "agent"]
+#: A teleop session's owner token (unguessable; see :class:`SessionInfo`).
+OwnerToken = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_\-]{16,128}$")]
 ImageEncoding = Literal["jpeg", "raw"]
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 TERMINAL_JOB_STATES: frozenset[str] = frozenset({"succeeded", "failed", "cancelled"})
+
+#: Largest step of :attr:`EeTarget.seq` from the last applied command (about 45 minutes of commands at 60 Hz).
+MAX_SEQ_STEP = 1 << 18
 
 #: Float32 numbers per body in :class:`PoseFrame` (position xyz, quaternion wxyz).
 POSE_WIDTH = 7
@@ -228,6 +233,9 @@ class SessionInfo(Message, frozen=True):
     camera: dict[str, Any]
     image_height: Pixels
     image_width: Pixels
+    #: The session's owner token, in the answer to the :class:`OpenSession` that created it (and to its owner's
+    #: later requests): every later request and :class:`EeTarget` must carry it as its Zenoh attachment.
+    owner: OwnerToken | None = None
 
 
 class SessionState(Message, frozen=True):
@@ -270,7 +278,9 @@ class EpisodeNotSaved(Message, frozen=True):
 class EeTarget(Message, frozen=True):
     """Teleop command on ``cmd``: end-effector (grasp point) target in the world and gripper closure.
 
-    Latest wins: the worker applies only the newest target at each control tick; ``seq`` increases.
+    Latest wins: the worker applies only the newest target at each control tick; ``seq`` increases, by at most
+    :data:`MAX_SEQ_STEP` from one applied command to the next (a command further ahead is dropped). It carries
+    the session's owner token as its attachment.
     """
 
     seq: Count

@@ -4,13 +4,23 @@ A client picks a session id, declares a liveliness token on ``studio/sim/<worker
 and sends :class:`~studio.backend.messages.OpenSession` to ``…/<session>/ctl``; every later request
 goes to the same key. The session ends on :class:`~studio.backend.messages.CloseSession` or when the
 client's token disappears (its process died or lost the link), so an abandoned session never keeps a
-simulator running. Rollout jobs run on the same worker through its
+simulator running.
+
+Session ids are visible to anyone on the bus (they are in every key of the session), so they grant nothing: the
+worker mints an unguessable *owner token* when it creates a session and returns it only in the answer to that
+OpenSession (:attr:`~studio.backend.messages.SessionInfo.owner`). Every later request to ``…/ctl`` — a re-open
+included — and every :class:`~studio.backend.messages.EeTarget` on ``…/cmd`` must carry it as its Zenoh
+attachment; the session answers anything else with ``conflict`` and drops such commands (one rate-limited line).
+The token is never published. Without an authenticated bus, a peer that can read the opener's traffic can still
+read the token. Rollout jobs run on the same worker through its
 :class:`~studio.backend.job_runner.JobRunner`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hmac
+import secrets
 import threading
 from pathlib import Path
 from typing import Any
@@ -31,7 +41,9 @@ class SimWorker:
         zsession: the worker's Zenoh session.
         presence: the worker's presence (its status shows the number of sessions).
         destination: where recorded episodes go.
-        spool_dir: where recordings the store refused are kept.
+        spool_dir: where recordings the store refused are kept (when they cannot be kept as drafts).
+        drafts_dir: the data dir's drafts (:class:`studio.data.drafts.RecordingDrafts`), where a recording the
+            store refused is kept so the studio offers it back (None: the spool directory only).
         max_sessions: sessions beyond this are refused with ``busy``.
         config: timing of every session.
     """
@@ -45,6 +57,7 @@ class SimWorker:
         *,
         max_sessions: int = 4,
         config: TeleopConfig | None = None,
+        drafts_dir: Path | None = None,
     ):
         self.zsession = zsession
         self.presence = presence
@@ -52,9 +65,11 @@ class SimWorker:
         self.destination = destination
         self.spool_dir = spool_dir
         self.max_sessions = max_sessions
+        self.drafts_dir = drafts_dir
         self.config = config or TeleopConfig()
         self._lock = threading.Lock()
         self._sessions: dict[str, TeleopSession] = {}
+        self._owners: dict[str, str] = {}  # session id -> owner token
         self._opening: set[str] = set()
         self._closing: list[threading.Thread] = []
         self._closed = False
@@ -75,10 +90,29 @@ class SimWorker:
         )
 
     # ------------------------------------------------------------------ requests
+    def _not_owner(self, session_id: str, query: zenoh.Query) -> msg.ErrorReply | None:
+        """An error unless the query carries the owner token of ``session_id`` (None: it does, or no such session)."""
+        with self._lock:
+            owner = self._owners.get(session_id)
+        if owner is None or hmac.compare_digest(bus.attachment_bytes(query), owner.encode()):
+            return None
+        bus.bad_input_log.warning(
+            f"ctl-owner:{self.worker}",
+            "refused a request to session %s without its owner's token",
+            session_id,
+        )
+        return msg.ErrorReply(
+            code="conflict",
+            message=f"session {session_id} belongs to another client (owner token missing or wrong)",
+        )
+
     def _on_ctl(self, request: msg.Message | None, query: zenoh.Query) -> Any:
         _, session_id, _ = keys.parse_session_key(str(query.key_expr))
         if request is None:
             return msg.ErrorReply(code="bad_request", message="a teleop request needs a payload")
+        refused = self._not_owner(session_id, query)
+        if refused is not None:
+            return refused
         if isinstance(request, msg.OpenSession):
             with self._lock:
                 if self._closed:
@@ -111,7 +145,9 @@ class SimWorker:
 
     def _open(self, session_id: str, request: msg.OpenSession, query: zenoh.Query) -> None:
         try:
-            self._close_session(session_id)  # re-opening replaces the old session
+            with self._lock:
+                owner = self._owners.get(session_id) or secrets.token_urlsafe(24)
+            self._close_session(session_id)  # re-opening (by its owner) replaces the old session
             try:
                 session = TeleopSession(
                     self.zsession,
@@ -121,6 +157,8 @@ class SimWorker:
                     self.destination,
                     self.spool_dir,
                     self.config,
+                    owner=owner,
+                    drafts_dir=self.drafts_dir,
                 )
             except SessionError as e:
                 bus.reply(query, msg.ErrorReply(code=e.code, message=str(e)))
@@ -133,6 +171,7 @@ class SimWorker:
                 closed = self._closed
                 if not closed:
                     self._sessions[session_id] = session
+                    self._owners[session_id] = owner
             if closed:
                 session.close()
                 bus.reply(query, msg.ErrorReply(code="unavailable", message="worker is shutting down"))
@@ -157,6 +196,7 @@ class SimWorker:
         """Remove a session; its pending saves finish (in the background unless ``wait``)."""
         with self._lock:
             session = self._sessions.pop(session_id, None)
+            self._owners.pop(session_id, None)
         if session is None:
             return False
         if wait:

@@ -14,7 +14,8 @@ Three threads per session, so that nothing slow ever delays physics:
   :class:`~studio.backend.messages.StreamFrames` and the frames of finished recordings, rendered on a
   second ``SimEnv`` (same scene, same task layout) set to a snapshot of the physics state.
 * **saver** — hands finished recordings to the store (a shared data directory or the bus); on failure
-  the recording is written to the worker's spool directory rather than lost. It also sends the ticks of a
+  the recording is kept as a draft of the data directory (offered back by the Teleop panel's *Interrupted
+  recordings*), or, without one, written to the worker's spool directory — never lost. It also sends the ticks of a
   recording that has a *draft* id as :class:`~studio.backend.messages.DraftChunk` messages every
   :data:`DRAFT_PERIOD_S` of simulated time, so a client holds them even if this worker dies mid-recording.
 
@@ -26,6 +27,8 @@ session is recording from there, the episode's earlier ticks included, at the ep
 from __future__ import annotations
 
 import collections
+import hmac
+import secrets
 import threading
 import time
 import traceback
@@ -163,8 +166,13 @@ class TeleopSession:
         destination: EpisodeDestination,
         spool_dir: Path,
         config: TeleopConfig = TeleopConfig(),
+        owner: str | None = None,
+        drafts_dir: Path | None = None,
     ):
         self.zsession = zsession
+        #: The owner token the session's commands must carry (None: commands need none; tests only).
+        self.owner = owner
+        self.drafts_dir = drafts_dir
         self.worker = worker
         self.id = session_id
         self.request = request
@@ -205,6 +213,7 @@ class TeleopSession:
         self._closed = False
         self._cmd: msg.EeTarget | None = None
         self._cmd_new = False
+        self._last_seq = 0  # seq of the newest command taken
         self._calls: list[_Call] = []
         self._seq = 0
         self._recorder: Recorder | None = None
@@ -228,9 +237,7 @@ class TeleopSession:
         self._render_cond = threading.Condition()
         self._render_jobs: collections.deque[tuple[str, Any]] = collections.deque()
         self._stream: msg.StreamFrames | None = None
-        self._save_queue: collections.deque[tuple[Recording, msg.Role, dict, str | None]] = (
-            collections.deque()
-        )
+        self._save_queue: collections.deque[tuple[Recording, _FinishJob]] = collections.deque()
         self._save_cond = threading.Condition()
 
         self._pose_pub = zsession.declare_publisher(
@@ -313,6 +320,7 @@ class TeleopSession:
             camera=env.camera_model("external").to_dict(),
             image_height=env.image_size[0],
             image_width=env.image_size[1],
+            owner=self.owner,
         )
 
     def state(self, message: str = "") -> msg.SessionState:
@@ -386,12 +394,29 @@ class TeleopSession:
             raise c.error
         return c.result
 
-    def _on_cmd(self, cmd: msg.EeTarget, _sample: zenoh.Sample) -> None:
+    def _on_cmd(self, cmd: msg.EeTarget, sample: zenoh.Sample | None) -> None:
+        if self.owner is not None and (
+            sample is None or not hmac.compare_digest(bus.attachment_bytes(sample), self.owner.encode())
+        ):
+            bus.bad_input_log.warning(
+                f"cmd-owner:{self.id}", "session %s: dropped a command without its owner's token", self.id
+            )
+            return
         with self._cond:
-            if self._cmd is None or cmd.seq >= self._cmd.seq:  # out-of-order stale commands are dropped
+            # Out-of-order stale commands are dropped, and so is one too far ahead (it would hold every later one).
+            if self._last_seq <= cmd.seq <= self._last_seq + msg.MAX_SEQ_STEP:
+                self._last_seq = cmd.seq
                 self._cmd = cmd
                 self._cmd_new = True
                 self._cond.notify_all()
+            else:
+                bus.bad_input_log.warning(
+                    f"cmd-seq:{self.id}",
+                    "session %s: dropped a command with seq %d (last %d)",
+                    self.id,
+                    cmd.seq,
+                    self._last_seq,
+                )
 
     # ------------------------------------------------------------------ sim thread
     def _sim_loop(self) -> None:
@@ -636,7 +661,7 @@ class TeleopSession:
                         rec.rows, rec.states = finish.rows, finish.states
                         recording = rec.finish(n_frames=finish.n_frames, success=finish.success)
                         with self._save_cond:
-                            self._save_queue.append((recording, finish.role, finish.extra, finish.draft))
+                            self._save_queue.append((recording, finish))
                             self._save_cond.notify()
                     except Exception as e:
                         bus.log.exception("session %s: finishing a recording failed", self.id)
@@ -676,7 +701,8 @@ class TeleopSession:
                     if self._closed and not self._render_busy_with_finish():
                         return
                     self._save_cond.wait(0.5)
-                recording, role, more, draft = self._save_queue.popleft()
+                recording, finish = self._save_queue.popleft()
+            role, more, draft = finish.role, finish.extra, finish.draft
             extra = {"session": self.id, "worker": self.worker, **more}
             try:
                 episode = self.destination.save(recording, role=role, source="teleop", extra=extra)
@@ -700,8 +726,11 @@ class TeleopSession:
                     msg.EpisodeNotSaved(session=self.id, reason=str(e), kept_at=str(e.kept_at), draft=draft)
                 )
             except Exception as e:
-                bus.log.exception("session %s: storing a recording failed", self.id)
-                kept = self._rescue(recording, role, extra)
+                bus.log.error(
+                    "session %s: storing a recording failed: %s", self.id, bus.one_line(e, with_type=True)
+                )
+                bus.log.debug("session %s: storing a recording failed", self.id, exc_info=True)
+                kept = self._rescue(recording, finish, extra)
                 self._saving_done()
                 self._publish_status(
                     msg.EpisodeNotSaved(
@@ -739,8 +768,16 @@ class TeleopSession:
                 self._save_queue
             )
 
-    def _rescue(self, recording: Recording, role: str, extra: dict) -> str:
-        """Write a recording the store refused to the spool directory, so nothing is lost."""
+    def _rescue(self, recording: Recording, finish: _FinishJob, extra: dict) -> str:
+        """Keep a recording the store refused, so nothing is lost: as a draft of the data dir (which the studio's
+        Teleop panel offers back under *Interrupted recordings*), else in the spool directory. Returns where."""
+        if self.drafts_dir is not None:
+            try:
+                return self._keep_as_draft(recording, finish, extra)
+            except (OSError, ValueError) as e:
+                bus.log.error(
+                    "session %s: could not keep the recording as a draft: %s", self.id, bus.one_line(e)
+                )
         try:
             self.spool_dir.mkdir(parents=True, exist_ok=True)
             path = self.spool_dir / f"unsaved-{self.id}-{int(time.time() * 1000)}.recording"
@@ -749,6 +786,33 @@ class TeleopSession:
         except OSError as e:
             bus.log.error("could not even spool the recording: %s", e)
             return ""
+
+    def _keep_as_draft(self, recording: Recording, finish: _FinishJob, extra: dict) -> str:
+        from studio.data.drafts import DraftError, RecordingDrafts
+
+        assert self.drafts_dir is not None
+        drafts = RecordingDrafts(self.drafts_dir)
+        n = len(finish.states)
+        if finish.draft is not None:  # the client journaled it: kept already if its draft holds every tick
+            try:
+                if drafts.next_step(finish.draft) >= n:
+                    return f"draft {finish.draft} (Teleop: Interrupted recordings)"
+            except (DraftError, OSError):
+                pass
+        draft = f"unsaved-{int(time.time())}-{secrets.token_hex(3)}"
+        header = {"scene": recording.scene, "robot": recording.robot, "task": recording.task,
+                  "seed": int(recording.seed), "control_dt": float(recording.control_dt), "role": finish.role,
+                  "forked_from": extra.get("forked_from"), "session": self.id}  # fmt: skip
+        drafts.create(draft, header)
+        try:
+            arrays = {
+                k: np.stack([np.asarray(r[k], dtype=np.float64) for r in finish.rows]) for k in finish.rows[0]
+            }
+            drafts.append(draft, 0, np.stack(finish.states), arrays)
+        except BaseException:
+            drafts.discard(draft)
+            raise
+        return f"draft {draft} (Teleop: Interrupted recordings)"
 
     # ------------------------------------------------------------------ closing
     def close(self, wait_s: float = 60.0) -> None:

@@ -7,7 +7,8 @@
     client.start_recording(); ...; saved = client.stop_recording()
 
 The client holds a liveliness token for its session, so the worker closes the session if the client
-process dies.
+process dies. The worker's answer to ``open`` carries the session's owner token, which the client then attaches
+to every request and command (:mod:`studio.backend.sim_worker`); nobody else can drive or stop the session.
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ class TeleopClient:
         self.info: msg.SessionInfo | None = None
         self._seq = 0
         self._seq_lock = threading.Lock()
+        self._owner: bytes | None = None  # the session's owner token, from the worker's answer to open
         self.poses = bus.Latest()
         self.frames = bus.Latest()
         self.state = bus.Latest()
@@ -110,7 +112,14 @@ class TeleopClient:
             self._on_draft(chunk)
 
     def _request(self, request: msg.Message, expect: Any, timeout: float | None = None) -> Any:
-        return bus.request(self.zsession, self._ctl_key, request, expect, timeout=timeout or self.timeout)
+        return bus.request(
+            self.zsession,
+            self._ctl_key,
+            request,
+            expect,
+            timeout=timeout or self.timeout,
+            attachment=self._owner,
+        )
 
     # ------------------------------------------------------------------ session
     def open(
@@ -136,8 +145,12 @@ class TeleopClient:
             image_width=image_size[1],
             fork=fork,
         )
-        self.info = self._request(request, msg.SessionInfo, timeout=max(self.timeout, 30.0))
-        return self.info
+        info = self._request(request, msg.SessionInfo, timeout=max(self.timeout, 30.0))
+        with self._seq_lock:
+            self._owner = None if info.owner is None else info.owner.encode()
+            self._seq = 0  # a new session counts its commands afresh
+        self.info = info
+        return info
 
     def reset(self, task: str | None = None, seed: int | None = None) -> msg.SessionInfo:
         self.info = self._request(msg.ResetSession(task=task, seed=seed), msg.SessionInfo)
@@ -150,7 +163,7 @@ class TeleopClient:
             self._seq += 1
             seq = self._seq
         cmd = msg.EeTarget(seq=seq, pos=(x, y, z), gripper=min(1.0, max(0.0, float(gripper))))
-        self._cmd_pub.put(msg.encode(cmd))
+        self._cmd_pub.put(msg.encode(cmd), attachment=self._owner)
         return seq
 
     def latest_pose(self) -> msg.PoseFrame | None:

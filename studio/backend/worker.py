@@ -28,8 +28,11 @@ from studio.backend.stopping import StopSignals
 KINDS = ("sim", "train")
 
 
-def default_spool_dir() -> Path:
-    """Where a worker keeps recordings until the store has them (per user, survives restarts)."""
+def default_spool_dir(data_dir: str | os.PathLike | None = None) -> Path:
+    """Where a worker keeps recordings until the store has them: ``<data-dir>/spool`` for a worker with a data
+    dir, else per user (both survive restarts)."""
+    if data_dir is not None:
+        return Path(data_dir) / "spool"
     return platformdirs.user_data_path("osvi-studio") / "spool"
 
 
@@ -48,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--spool-dir",
         default=None,
-        help=f"where episodes wait until the store has them (default: {default_spool_dir()})",
+        help="where episodes wait until the store has them (default: <data-dir>/spool, or without --data-dir "
+        f"{default_spool_dir()})",
     )
     parser.add_argument(
         "--handler",
@@ -97,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
 
     signals = StopSignals("studio worker")
     parent = os.getppid()
-    spool_dir = Path(args.spool_dir) if args.spool_dir else default_spool_dir()
+    spool_dir = Path(args.spool_dir) if args.spool_dir else default_spool_dir(args.data_dir)
     presence = WorkerPresence(
         session, args.kind, worker_id, job_kinds=sorted(handlers), unavailable=unavailable, announce=False
     )
@@ -121,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
             spool_dir,
             max_sessions=args.max_sessions,
             config=TeleopConfig(control_dt=1.0 / args.control_hz),
+            drafts_dir=Path(args.data_dir) if args.data_dir else None,
         )
     presence.announce()
     where = ", ".join(config.connect + config.listen)

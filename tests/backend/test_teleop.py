@@ -241,3 +241,77 @@ def test_hand_recordings_are_human_demonstrations(site):
     (meta,) = [m for m in hub.store.episodes() if m.id not in before]
     assert (meta.embodiment, meta.role, meta.source, meta.seed) == ("human", "expert", "teleop", 6)
     assert meta.has_arrays
+
+
+def test_only_the_opener_controls_its_session(site):
+    """Session ids are public (they are in every key); the owner token is not. Another peer's DiscardRecording,
+    reset, re-open or close is refused, its commands are dropped, and a command far ahead in seq freezes nothing."""
+    hub, _ = site
+    other = bus.open_session(bus.BusConfig.worker([hub.endpoint]))
+    try:
+        with TeleopClient(hub.session, "sim-local") as client:
+            info = client.open("pick_place", "panda", TASK, seed=4)
+            assert info.owner is not None and len(info.owner) >= 16
+            start = np.asarray(client.poses.wait_until(lambda f: True, 5.0).ee_pos)
+            client.start_recording()
+            ctl = keys.session_key("sim-local", client.session_id, "ctl")
+            cmd = keys.session_key("sim-local", client.session_id, "cmd")
+            for request in (
+                msg.DiscardRecording(),
+                msg.StopRecording(),
+                msg.ResetSession(seed=9),
+                msg.OpenSession(scene="pick_place", robot="panda", task=TASK, seed=0),
+                msg.CloseSession(),
+            ):
+                with pytest.raises(bus.RemoteError, match=r"conflict: .*belongs to another client"):
+                    bus.request(other, ctl, request, msg.Message, timeout=5)
+            with pytest.raises(bus.RemoteError, match="belongs to another client"):
+                bus.request(other, ctl, msg.DiscardRecording(), msg.Message, timeout=5, attachment=b"x" * 32)
+            # A forged command, and a far-ahead one: neither is applied nor holds back the owner's commands.
+            other.put(cmd, msg.encode(msg.EeTarget(seq=2**62, pos=(0.0, 0.6, 0.6), gripper=1.0)))
+            drive(client, start + np.array([0.0, 0.04, 0.0]), gripper=0.0, ticks=10)
+            client._cmd_pub.put(
+                msg.encode(msg.EeTarget(seq=2**62, pos=(0.0, 0.6, 0.6), gripper=1.0)),
+                attachment=client._owner,
+            )
+            frame = drive(client, start + np.array([0.0, 0.05, 0.0]), gripper=0.0, ticks=15)
+            assert (
+                frame.ack_seq < 2**62 and abs(frame.ee_pos[2] - start[2]) < 0.05
+            )  # not sent to the forged z
+            state = client.state.wait_until(lambda s: s.recorded_steps >= 20, 5.0)
+            assert state is not None and state.state == "recording", state
+            saved = client.stop_recording(timeout=120)  # the owner's recording survived the attempts
+            assert isinstance(saved, msg.EpisodeSaved), saved
+    finally:
+        other.close()
+
+
+def test_a_recording_the_store_refuses_is_kept_as_a_draft_of_the_data_dir(tmp_path, port, workers):
+    """A full or broken store: the recording becomes a draft in the worker's data dir, which the Teleop panel's
+    Interrupted recordings lists (RecordingDrafts), with every recorded tick — not a file outside the data dir."""
+    from studio.data.drafts import RecordingDrafts
+
+    hub = Hub(bus.BusConfig.hub([bus.loopback_endpoint(port)]), data_dir=tmp_path / "hub-data")
+    try:
+        data = tmp_path / "worker-data"
+        data.mkdir()
+        (data / "episodes").write_text("not a directory: the store cannot open")
+        workers.start("sim", "sim-broken", "--data-dir", str(data), handlers=())
+        wait_worker(hub.directory, "sim-broken")
+        with TeleopClient(hub.session, "sim-broken") as client:
+            client.open("pick_place", "panda", TASK, seed=2)
+            client.start_recording()
+            start = np.asarray(client.poses.wait_until(lambda f: True, 5.0).ee_pos)
+            drive(client, start + np.array([0.0, 0.05, -0.03]), gripper=0.0, ticks=30)
+            outcome = client.stop_recording(timeout=120)
+        assert isinstance(outcome, msg.EpisodeNotSaved), outcome
+        assert outcome.kept_at.startswith("draft "), outcome.kept_at
+        drafts = RecordingDrafts(data).drafts()
+        assert len(drafts) == 1 and outcome.kept_at.split()[1] == drafts[0].id
+        draft = RecordingDrafts(data).load(drafts[0].id)
+        assert draft.header["task"] == TASK and draft.header["role"] == "agent" and draft.num_steps >= 30
+        assert not list((tmp_path / "spool-sim-broken").glob("unsaved-*"))
+        log = workers.log("sim-broken")
+        assert "storing a recording failed: FileExistsError" in log and "Traceback" not in log, log
+    finally:
+        hub.close()
