@@ -20,6 +20,7 @@ import os
 import secrets
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -36,6 +37,12 @@ if TYPE_CHECKING:
     from studio.data.store import EpisodeStore
 
 CHUNK_BYTES = 1 << 20
+#: Bounds of what the hub holds of transfers not yet committed (see :class:`EpisodeSink`).
+MAX_UNCOMMITTED_BYTES = 256 << 20
+MAX_TRANSFER_BYTES = 160 << 20
+MAX_TRANSFER_CHUNKS = 256
+MAX_TRANSFERS = 8
+STALE_S = 30.0
 #: Where an episode came from: the values :class:`~studio.backend.messages.EpisodeCommit` accepts.
 EpisodeSource = Literal["scripted", "teleop", "rollout"]
 
@@ -89,26 +96,67 @@ class _Incoming:
 class EpisodeSink:
     """The hub's end of episode shipping: reassembles transfers and adds them to ``store``.
 
-    ``store`` is a :class:`studio.data.store.EpisodeStore` (anything with its ``add_episode``).
-    Partial transfers idle for ``stale_s`` are dropped (the worker still holds its spool file).
+    ``store`` is a :class:`studio.data.store.EpisodeStore` (anything with its ``add_episode``). Uncommitted
+    chunks are held in memory within bounds: ``max_bytes`` in all, ``max_transfer_bytes`` and
+    ``max_chunks`` per transfer, ``max_transfers`` transfers at once (beyond them a chunk is answered
+    ``busy`` or ``bad_request``); a partial transfer idle for ``stale_s`` is dropped (the worker still holds
+    its spool file and sends it again).
     """
 
     def __init__(
-        self, session: zenoh.Session, store: Any, *, max_bytes: int = 4 << 30, stale_s: float = 300.0
+        self,
+        session: zenoh.Session,
+        store: Any,
+        *,
+        max_bytes: int = MAX_UNCOMMITTED_BYTES,
+        max_transfer_bytes: int = MAX_TRANSFER_BYTES,
+        max_chunks: int = MAX_TRANSFER_CHUNKS,
+        max_transfers: int = MAX_TRANSFERS,
+        stale_s: float = STALE_S,
     ):
         self.store = store
         self.max_bytes = max_bytes
+        self.max_transfer_bytes = max_transfer_bytes
+        self.max_chunks = max_chunks
+        self.max_transfers = max_transfers
         self.stale_s = stale_s
         self._lock = threading.Lock()
         self._incoming: dict[str, _Incoming] = {}
-        self._done: dict[str, str] = {}  # transfer -> episode id (answers a retried commit)
+        self._held = 0  # bytes of uncommitted chunks
+        self._done: OrderedDict[str, str] = OrderedDict()  # transfer -> episode id (answers a retried commit)
+        self._stop = threading.Event()
         self._queryable = bus.declare_queryable(
-            session, keys.ALL_UPLOADS, self._on_request, (msg.EpisodeChunk, msg.EpisodeCommit)
+            session,
+            keys.ALL_UPLOADS,
+            self._on_request,
+            (msg.EpisodeChunk, msg.EpisodeCommit),
+            max_bytes=CHUNK_BYTES + (64 << 10),
         )
+        self._sweeper = threading.Thread(target=self._sweep_loop, name="episode-sink-expiry", daemon=True)
+        self._sweeper.start()
 
     def close(self) -> None:
+        self._stop.set()
         with contextlib.suppress(zenoh.ZError):
             self._queryable.undeclare()
+        with self._lock:
+            self._incoming.clear()
+            self._held = 0
+
+    @property
+    def held_bytes(self) -> int:
+        """Bytes of uncommitted chunks held now."""
+        with self._lock:
+            return self._held
+
+    def _sweep_loop(self) -> None:
+        while not self._stop.wait(min(5.0, self.stale_s / 2)):
+            with self._lock:
+                self._expire_locked(time.monotonic())
+
+    def _expire_locked(self, now: float) -> None:
+        for t in [t for t, inc in self._incoming.items() if now - inc.touched > self.stale_s]:
+            self._held -= self._incoming.pop(t).size
 
     def _on_request(self, request: msg.Message, query: zenoh.Query) -> msg.Message:
         transfer = keys.parse_upload_key(str(query.key_expr))
@@ -120,27 +168,46 @@ class EpisodeSink:
         return self._commit(request)
 
     def _chunk(self, chunk: msg.EpisodeChunk) -> msg.Message:
+        if chunk.count > self.max_chunks:
+            return msg.ErrorReply(
+                code="bad_request",
+                message=f"a transfer has at most {self.max_chunks} chunks, not {chunk.count}",
+            )
+        if len(chunk.data) > CHUNK_BYTES:
+            return msg.ErrorReply(code="bad_request", message=f"a chunk holds at most {CHUNK_BYTES} bytes")
         now = time.monotonic()
         with self._lock:
-            for t in [t for t, inc in self._incoming.items() if now - inc.touched > self.stale_s]:
-                del self._incoming[t]
-            inc = self._incoming.setdefault(chunk.transfer, _Incoming(count=chunk.count))
+            self._expire_locked(now)
+            inc = self._incoming.get(chunk.transfer)
+            if inc is None:
+                if len(self._incoming) >= self.max_transfers:
+                    return msg.ErrorReply(
+                        code="busy", message=f"the store host receives {self.max_transfers} transfers already"
+                    )
+                inc = self._incoming[chunk.transfer] = _Incoming(count=chunk.count)
             if inc.count != chunk.count:
                 return msg.ErrorReply(
                     code="bad_request", message=f"chunk count changed from {inc.count} to {chunk.count}"
                 )
-            total = sum(i.size for i in self._incoming.values())
-            if chunk.index not in inc.chunks and total + len(chunk.data) > self.max_bytes:
-                return msg.ErrorReply(
-                    code="busy", message="the store host holds too many unfinished transfers"
-                )
             if chunk.index not in inc.chunks:
+                if inc.size + len(chunk.data) > self.max_transfer_bytes:
+                    return msg.ErrorReply(
+                        code="bad_request",
+                        message=f"a transfer holds at most {self.max_transfer_bytes} bytes",
+                    )
+                if self._held + len(chunk.data) > self.max_bytes:
+                    return msg.ErrorReply(
+                        code="busy", message="the store host holds too many unfinished transfers"
+                    )
                 inc.chunks[chunk.index] = chunk.data
                 inc.size += len(chunk.data)
+                self._held += len(chunk.data)
             inc.touched = now
         return msg.ChunkAck(transfer=chunk.transfer, index=chunk.index)
 
     def _commit(self, commit: msg.EpisodeCommit) -> msg.Message:
+        from studio.data.store import StoreError
+
         with self._lock:
             if commit.transfer in self._done:
                 return msg.EpisodeStored(transfer=commit.transfer, episode=self._done[commit.transfer])
@@ -152,6 +219,7 @@ class EpisodeSink:
                 )
             data = b"".join(inc.chunks[i] for i in range(commit.count))
             del self._incoming[commit.transfer]
+            self._held -= inc.size
         if hashlib.sha256(data).hexdigest() != commit.sha256:
             return msg.ErrorReply(code="bad_request", message="SHA-256 mismatch; resend the episode")
         try:
@@ -161,11 +229,18 @@ class EpisodeSink:
             return msg.ErrorReply(code="bad_request", message=f"not a valid recording: {e}")
         extra = dict(commit.extra)
         extra.setdefault("transfer", commit.transfer)
-        meta = self.store.add_episode(
-            recording, role=commit.role, source=commit.source, embodiment=commit.embodiment, extra=extra
-        )
+        try:
+            meta = self.store.add_episode(
+                recording, role=commit.role, source=commit.source, embodiment=commit.embodiment, extra=extra
+            )
+        except (ValueError, StoreError) as e:  # the store refuses it (an unknown embodiment, a filled slot)
+            return msg.ErrorReply(
+                code="bad_request", message=f"the store refused the episode: {bus.one_line(e)}"
+            )
         with self._lock:
             self._done[commit.transfer] = meta.id
+            while len(self._done) > 1000:
+                self._done.popitem(last=False)
         return msg.EpisodeStored(transfer=commit.transfer, episode=meta.id)
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,25 @@ from studio.backend.presence import Directory
 from studio.backend.stopping import StopSignals
 
 JOURNAL_NAME = "jobs/queue.json"
+
+
+class DataDirError(bus.BusError):
+    """The hub cannot use its data directory (missing permission, read-only, full). A :class:`~bus.BusError`, so
+    that whatever reports a hub that cannot start (``studio hub``, ``studio serve``) says it in one line."""
+
+
+def _open_store(data_dir: Path) -> Any:
+    """The data dir's episode store, or :class:`DataDirError` saying in one line why it cannot be used."""
+    from studio.data.catalog import CatalogError
+    from studio.data.store import EpisodeStore, StoreError
+
+    try:
+        return EpisodeStore(data_dir)
+    except (OSError, CatalogError, StoreError) as e:
+        why = e.strerror if isinstance(e, OSError) and e.strerror else bus.one_line(e)
+        if not os.access(data_dir if data_dir.exists() else data_dir.parent, os.W_OK):
+            why += " (the directory is not writable)"
+        raise DataDirError(f"cannot use the data dir {data_dir}: {why}") from None
 
 
 class Hub:
@@ -43,12 +63,11 @@ class Hub:
         store: Any = None,
     ):
         from studio.data.paths import resolve_data_dir
-        from studio.data.store import EpisodeStore
 
         self.config = config or bus.BusConfig.hub()
         self.data_dir = resolve_data_dir(data_dir)
         self._own_store = store is None
-        self.store = store if store is not None else EpisodeStore(self.data_dir)
+        self.store = store if store is not None else _open_store(self.data_dir)
         self.session = bus.open_session(self.config)
         self.directory = Directory(self.session)
         self.jobs = JobQueue(self.session, self.directory, journal=journal or self.data_dir / JOURNAL_NAME)

@@ -148,3 +148,65 @@ def test_sink_refuses_incomplete_or_corrupt_transfers(sessions, tmp_path):
             bus.request(worker, keys.upload_key("t-3"), junk_commit, msg.EpisodeStored)
         assert store.episodes() == []
         sink.close()
+
+
+def test_uncommitted_chunks_are_bounded_and_expire(sessions, tmp_path):
+    """A peer that sends chunks and never commits holds a bounded amount of the hub's memory, briefly."""
+    from studio.backend import episode_transfer as et
+
+    assert et.MAX_UNCOMMITTED_BYTES <= 256 << 20 and et.STALE_S <= 60 and et.MAX_TRANSFER_CHUNKS <= 256
+    hub, worker = sessions
+    with EpisodeStore(tmp_path / "data") as store:
+        sink = EpisodeSink(hub, store)
+        chunk = lambda t, i, n, size=1000: msg.EpisodeChunk(transfer=t, index=i, count=n, data=b"x" * size)  # noqa: E731
+        with pytest.raises(bus.RemoteError, match="bad_request: a transfer has at most 256 chunks"):
+            bus.request(worker, keys.upload_key("u-0"), chunk("u-0", 0, 400_000), msg.ChunkAck)
+        for t in range(et.MAX_TRANSFERS):
+            bus.request(worker, keys.upload_key(f"u-{t}"), chunk(f"u-{t}", 0, 2), msg.ChunkAck)
+        with pytest.raises(bus.RemoteError, match=r"busy: .*transfers already"):
+            bus.request(worker, keys.upload_key("u-x"), chunk("u-x", 0, 2), msg.ChunkAck)
+        with pytest.raises(bus.RemoteError, match="bad_request: request larger than"):
+            bus.request(worker, keys.upload_key("u-0"), chunk("u-0", 1, 2, size=3 << 20), msg.ChunkAck)
+        assert sink.held_bytes == 1000 * et.MAX_TRANSFERS
+        sink.close()
+
+        small = EpisodeSink(hub, store, max_bytes=5000, max_transfer_bytes=3000, stale_s=0.6)
+        for i in range(3):
+            bus.request(worker, keys.upload_key("v-1"), chunk("v-1", i, 10), msg.ChunkAck)
+        with pytest.raises(bus.RemoteError, match="bad_request: a transfer holds at most 3000 bytes"):
+            bus.request(worker, keys.upload_key("v-1"), chunk("v-1", 3, 10), msg.ChunkAck)
+        bus.request(worker, keys.upload_key("v-2"), chunk("v-2", 0, 10, size=2000), msg.ChunkAck)
+        with pytest.raises(bus.RemoteError, match="busy: the store host holds too many"):
+            bus.request(worker, keys.upload_key("v-3"), chunk("v-3", 0, 10), msg.ChunkAck)
+        deadline = time.monotonic() + 5
+        while small.held_bytes and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert small.held_bytes == 0  # expired without another request arriving
+        small.close()
+
+
+def test_an_episode_the_store_refuses_is_one_bad_request_and_one_log_line(sessions, tmp_path, caplog):
+    hub, worker = sessions
+    with EpisodeStore(tmp_path / "data") as store:
+        sink = EpisodeSink(hub, store)
+        payload = msg.encode(recording_payload(make_recording(5)))
+        sha = hashlib.sha256(payload).hexdigest()
+        for i in range(3):
+            t = f"e-{i}"
+            bus.request(
+                worker,
+                keys.upload_key(t),
+                msg.EpisodeChunk(transfer=t, index=0, count=1, data=payload),
+                msg.ChunkAck,
+            )
+            commit = msg.EpisodeCommit(
+                transfer=t, count=1, sha256=sha, role="agent", source="teleop", embodiment="martian"
+            )
+            with pytest.raises(
+                bus.RemoteError, match=r"bad_request: the store refused the episode: .*embodiment"
+            ):
+                bus.request(worker, keys.upload_key(t), commit, msg.EpisodeStored)
+        assert not store.episodes()
+        sink.close()
+    text = caplog.text
+    assert "Traceback" not in text and len([r for r in caplog.records if r.levelname != "DEBUG"]) <= 1, text
