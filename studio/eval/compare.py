@@ -353,12 +353,14 @@ def check_checkpoint(checkpoint: str, scene: str) -> None:
     path = Path(checkpoint)
     if not path.is_file():
         raise CompareInputError(f"no checkpoint file {checkpoint!r} (give a .pt file or 'oracle')")
-    from studio.model.train import load_checkpoint
+    from studio.model.checkpoint_info import read_checkpoint_info
 
-    try:
-        trained = load_checkpoint(path).get("tasks") or []
-    except Exception as e:  # not a checkpoint at all: torch's own error says why
-        raise CompareInputError(f"{checkpoint} is not a checkpoint: {e}") from None
+    try:  # the file's metadata only, read without torch and without running anything in it
+        trained = read_checkpoint_info(path).get("tasks") or []
+    except ValueError as e:
+        raise CompareInputError(f"{checkpoint} is not a checkpoint ({str(e).splitlines()[0]})") from None
+    if not isinstance(trained, (list, tuple)):
+        trained = []
     scenes = sorted({scene_of_task(t) for t in trained if "/" in str(t)})
     if scenes and scene not in scenes:
         raise CompareInputError(
