@@ -302,6 +302,7 @@ class TrainPanel:
             raise SceneMismatch(f"`{ck.id}` does not say which scene it was trained on")
         self.app.runs.set_active(ck.id, ck.scene)
         self.make_active.visible = False
+        self._recount()
         if self.scene.value != ck.scene:
             self.scene.value = ck.scene
             self._fill_tasks()
@@ -324,6 +325,7 @@ class TrainPanel:
         else:
             self._refusal = None
         self._refresh_checkpoints()
+        self._recount()
 
     def _active_text(self, scene: str) -> tuple[str | None, str]:
         """The label the dropdown shows for ``scene`` (None: leave it) and the note below it."""
@@ -390,14 +392,15 @@ class TrainPanel:
     # ------------------------------------------------------------------ the pairs and the runs they make
     def _show_counts(self) -> None:
         """Count the training pairs of the ticked tasks when the data or the choices changed (or every few
-        seconds: an episode's outcome can change), and show them with the runs Start and Fine-tune would make."""
-        active = self._active_policy()[0]
+        seconds: an episode's outcome or the active policy can change), and show them with the runs Start and
+        Fine-tune would make."""
         choices = (self.scene.value, tuple(self.selected_tasks()), self.config.value, self.overrides.value)
-        key = (self.app.dataset_version, choices, active.id if active else None)
+        key = (self.app.dataset_version, choices)
         now = time.monotonic()
         if key == self._count_key and now - self._count_at < 5.0:
             return
         self._count_key, self._count_at = key, now
+        active = self._active_policy()[0]
         try:
             split = self._chosen_split()
         except ValueError as e:
