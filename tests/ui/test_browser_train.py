@@ -193,3 +193,31 @@ def test_fine_tune_the_active_policy_and_make_the_result_active(studio, page, sh
     ui.wait(lambda: not train.make_active.visible, 10, "the button to go once done")
     page.get_by_text("fine-tune").first.wait_for(timeout=30_000)  # the runs table names the run's kind
     ui.shot(page, shots / "train-made-active.png", scroll_to="Active policy")
+
+
+def test_a_cancelled_run_stops_its_clock_and_keeps_its_step(studio, page):
+    tab = ui.tab(studio)
+    train = tab.train
+    train.steps.value = 5000
+    page.get_by_text("Start: 5000 steps of batch 2").first.wait_for(timeout=30_000)
+    ui.click(page.get_by_role("button", name="Start training"))
+    ui.wait(lambda: len(_train_jobs(studio)) == 3, 60, "the long run", lambda: _state(train))
+    job = train.job_id
+    page.get_by_text(" · ETA ").first.wait_for(timeout=120_000)
+    tracked = studio.jobs.get(job)
+    ui.wait(
+        lambda: tracked.progress and tracked.progress.step >= 3, 120, "three steps", lambda: _state(train)
+    )
+    ui.click(page.get_by_role("button", name="Cancel"))
+    page.get_by_text("ended: cancelled").first.wait_for(timeout=120_000)
+    assert "ETA" not in train.state.content and "pairs/s" not in train.state.content
+    (run,) = [r for r in studio.runs.runs() if r.id == job]
+    assert run.ended == "cancelled" and run.step >= 3
+    short = job.removeprefix("train-")
+    ui.wait(
+        lambda: f"`{short}` | cpu | {run.step}/5000 | cancelled |" in train.runs_table.content,
+        30,
+        "the runs table row",
+        lambda: train.runs_table.content,
+    )
+    page.get_by_text(f"{run.step}/5000").first.wait_for(timeout=30_000)
