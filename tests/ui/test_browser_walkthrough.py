@@ -33,14 +33,26 @@ class _Errors(logging.Handler):
         self.lines.append(f"{record.levelname} {record.name}: {record.getMessage().splitlines()[0]}")
 
 
-def _job_done(studio, kind: str, since: float, timeout: float, what: str):
-    """The first ``kind`` job submitted after ``since``, once it is finished (failing the step if it never is)."""
+def _job_done(studio, kind: str, since: float, timeout: float, what: str, notes: list, state=None):
+    """The first ``kind`` job submitted after ``since``, once it is finished. Fails at once if a red notification
+    comes first (the panel refused), and within two minutes if no such job is queued."""
+    seen = len(notes)
 
-    def done():
-        jobs = [j for j in studio.hub.jobs.jobs() if j.kind == kind and j.submitted_at >= since]
-        return jobs[0] if jobs and jobs[0].terminal else None
+    def jobs():
+        return [j for j in studio.hub.jobs.jobs() if j.kind == kind and j.submitted_at >= since]
 
-    return ui.wait(done, timeout, what, lambda: [(j.kind, j.state, j.reason) for j in studio.hub.jobs.jobs()])
+    def refused() -> str | None:
+        return next((f"{t}: {b}" for t, b, e in notes[seen:] if e), None)
+
+    def describe() -> str:
+        return f"jobs {[(j.kind, j.state, j.reason) for j in studio.hub.jobs.jobs()]}" + (
+            f"; the panel shows {state()!r}" if state else ""
+        )
+
+    ui.wait(lambda: jobs() or refused(), 120, f"a {kind} job to be queued", describe)
+    if not jobs():
+        raise AssertionError(f"no {kind} job: {refused()}")
+    return ui.wait(lambda: jobs()[0] if jobs()[0].terminal else None, timeout, what, describe)
 
 
 def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypatch):
@@ -110,7 +122,9 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
                 ui.open_tab(page, "Train", "Start training")
                 since = time.time()
                 ui.click(page.get_by_role("button", name="Start training"))
-                job = _job_done(studio, "train", since, 1200, "the training run to finish")
+                job = _job_done(
+                    studio, "train", since, 1200, "the training run", notes, lambda: tab.train.state.content
+                )
                 assert job.state == "succeeded", f"training {job.state}: {job.reason}"
 
             def imitate() -> None:
@@ -119,15 +133,17 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
                 if im.demo.value == "(none)" or im.demo.value.startswith("("):
                     since = time.time()
                     ui.click(page.get_by_role("button", name="Make a scripted demonstration"))
-                    job = _job_done(studio, "expert", since, 300, "the scripted demonstration")
+                    job = _job_done(studio, "expert", since, 300, "the scripted demonstration", notes)
                     assert job.state == "succeeded", f"scripted demonstration {job.state}: {job.reason}"
                 since = time.time()
                 ui.click(page.get_by_role("button", name="Plan", exact=True))
-                job = _job_done(studio, "plan", since, 300, "the plan")
+                job = _job_done(studio, "plan", since, 300, "the plan", notes, lambda: im.status.content)
                 assert job.state == "succeeded", f"plan {job.state}: {job.reason}"
                 since = time.time()
                 ui.click(page.get_by_role("button", name="Execute", exact=True))
-                job = _job_done(studio, "rollout", since, 600, "the rollout")
+                job = _job_done(
+                    studio, "rollout", since, 600, "the rollout", notes, lambda: im.status.content
+                )
                 assert job.state == "succeeded", f"rollout {job.state}: {job.reason}"
 
             def inspect() -> None:
@@ -143,7 +159,15 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
                 ui.open_tab(page, "Compare", "Episodes per task")
                 since = time.time()
                 ui.click(page.get_by_role("button", name="Start", exact=True))
-                job = _job_done(studio, "compare", since, 1500, "the comparison to finish")
+                job = _job_done(
+                    studio,
+                    "compare",
+                    since,
+                    1500,
+                    "the comparison",
+                    notes,
+                    lambda: tab.compare.status.content,
+                )
                 assert job.state == "succeeded", f"comparison {job.state}: {job.reason}"
 
             for name, action in (
