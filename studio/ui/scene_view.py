@@ -2,7 +2,7 @@
 
 The bodies come from a :class:`~studio.backend.messages.SceneGeometry` (sent by the sim worker, or built
 from the scene files for replays): one viser frame per body that carries geoms, the geoms as meshes under
-it in their body-local poses. A pose update moves the body frames only, and only those that moved visibly
+it in their body-local poses, all under a root frame named afresh for every load (see :meth:`SceneView._fresh`). A pose update moves the body frames only, and only those that moved visibly
 (:data:`POSITION_EPS`, :data:`QUATERNION_EPS`) since the pose last *sent* for them — so slow motion still shows
 and contact chatter does not (a cylinder resting on the table rocks by ~0.05° at every tick, which made the
 browser redraw at 60 Hz forever) — all inside one ``client.atomic()`` block so the browser applies a whole tick
@@ -114,7 +114,7 @@ class SceneView:
         self._bodies: dict[int, viser.FrameHandle] = {}
         self._nodes: list = []
         self._scene_root: viser.FrameHandle | None = None
-        self._generation = 0  # numbers every load and overlay: no node name is ever created twice
+        self._generation = 0  # numbers the loads: no body or geom name is ever created twice
         self._sent: np.ndarray | None = None
         self._lock = threading.RLock()
         self._frustum: viser.CameraFrustumHandle | None = None
