@@ -221,3 +221,24 @@ def test_a_cancelled_run_stops_its_clock_and_keeps_its_step(studio, page):
         lambda: train.runs_table.content,
     )
     page.get_by_text(f"{run.step}/5000").first.wait_for(timeout=30_000)
+
+
+def test_a_failed_run_says_so_in_the_runs_table(studio, page):
+    tab = ui.tab(studio)
+    train = tab.train
+    train.overrides.value = "; ".join(
+        [*TINY, "model.n_expert_frames=1"]
+    )  # the trainer refuses: N must be ≥ 2
+    train.steps.value = 4
+    page.get_by_text("Start: 4 steps of batch 2").first.wait_for(timeout=30_000)
+    ui.click(page.get_by_role("button", name="Start training"))
+    ui.wait(lambda: len(_train_jobs(studio)) == 4, 60, "the run", lambda: _state(train))
+    job = train.job_id
+    page.get_by_text("must be at least 2").first.wait_for(timeout=120_000)
+    short = job.removeprefix("train-")
+    ui.wait(
+        lambda: f"`{short}` | cpu | 0 | failed |" in train.runs_table.content,
+        30,
+        "the failed run's row",
+        lambda: train.runs_table.content,
+    )
