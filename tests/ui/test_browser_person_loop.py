@@ -79,6 +79,10 @@ def test_collect_record_fine_tune_activate_and_plan(studio, page, shots):
     shipped = studio.runs.active("pick_place")
     assert shipped is not None and shipped.id.startswith("default/"), "the shipped policy is active at first"
     ui.open_tab(page, "Train", "training pair")
+    # The active policy reads at a glance; what was measured of it is one fold away.
+    assert page.get_by_role("combobox", name="Active policy").input_value() == "shipped policy pick-place-cpu"
+    ui.click(page.get_by_text("About the active policy"))
+    page.get_by_text(shipped.summary[:60]).first.wait_for(timeout=30_000)
     page.get_by_text(re.compile(r"demonstrations? × \d+ agent episodes? of cube->red")).first.wait_for(
         timeout=60_000
     )

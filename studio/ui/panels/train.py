@@ -137,6 +137,8 @@ class TrainPanel:
                 "Active policy", ("oracle",), hint="plans the Imitate tasks of the scene chosen above"
             )
             self.active_note = gui.add_markdown("")
+            with gui.add_folder("About the active policy", expand_by_default=False):
+                self.active_about = gui.add_markdown("")
         self._fill_tasks()
         self.scene.on_update(lambda e: e.client and (self._fill_tasks(), self._refresh_checkpoints()))
         for widget in (self.config, self.overrides, self.seed):
@@ -356,6 +358,19 @@ class TrainPanel:
             note = f"{self._refusal[1]} {note}"
         if self.active_note.content != note:
             self.active_note.content = note
+        about = self._active_summary(scene)
+        if self.active_about.content != about:
+            self.active_about.content = about
+
+    def _active_summary(self, scene: str) -> str:
+        """What was measured of the scene's active policy (its NAME.json summary), for the fold."""
+        try:
+            active = self.app.runs.active(scene)
+        except SceneMismatch:
+            return ""
+        if active.is_oracle:
+            return "The oracle plans from the true state: the execution ceiling, not a learned policy."
+        return active.summary or f"No measured summary is recorded for `{active.id}`."
 
     # ------------------------------------------------------------------ refresh
     def _current_job(self):
