@@ -33,10 +33,13 @@ class _Errors(logging.Handler):
         self.lines.append(f"{record.levelname} {record.name}: {record.getMessage().splitlines()[0]}")
 
 
-def _job_done(studio, kind: str, since: float, timeout: float, what: str, notes: list, state=None):
-    """The first ``kind`` job submitted after ``since``, once it is finished. Fails at once if a red notification
-    comes first (the panel refused), and within two minutes if no such job is queued."""
-    seen = len(notes)
+def _job_done(
+    studio, kind: str, after: tuple[float, int], timeout: float, what: str, notes: list, state=None
+):
+    """The first ``kind`` job submitted ``after`` a click, once it is finished. Fails at once if a red notification
+    comes first (the panel refused), and within two minutes if no such job is queued. ``after``: the time and the
+    number of notifications before the click."""
+    since, seen = after
 
     def jobs():
         return [j for j in studio.hub.jobs.jobs() if j.kind == kind and j.submitted_at >= since]
@@ -119,8 +122,8 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
                 )
 
             def train() -> None:
-                ui.open_tab(page, "Train", "Start training")
-                since = time.time()
+                ui.open_tab(page, "Train", "is the paper's model")
+                since = time.time(), len(notes)
                 ui.click(page.get_by_role("button", name="Start training"))
                 job = _job_done(
                     studio, "train", since, 1200, "the training run", notes, lambda: tab.train.state.content
@@ -129,17 +132,17 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
 
             def imitate() -> None:
                 im = tab.imitate
-                ui.open_tab(page, "Imitate", "Demonstration")
+                ui.open_tab(page, "Imitate", "held-out ones were never trained on")
                 if im.demo.value == "(none)" or im.demo.value.startswith("("):
-                    since = time.time()
+                    since = time.time(), len(notes)
                     ui.click(page.get_by_role("button", name="Make a scripted demonstration"))
                     job = _job_done(studio, "expert", since, 300, "the scripted demonstration", notes)
                     assert job.state == "succeeded", f"scripted demonstration {job.state}: {job.reason}"
-                since = time.time()
+                since = time.time(), len(notes)
                 ui.click(page.get_by_role("button", name="Plan", exact=True))
                 job = _job_done(studio, "plan", since, 300, "the plan", notes, lambda: im.status.content)
                 assert job.state == "succeeded", f"plan {job.state}: {job.reason}"
-                since = time.time()
+                since = time.time(), len(notes)
                 ui.click(page.get_by_role("button", name="Execute", exact=True))
                 job = _job_done(
                     studio, "rollout", since, 600, "the rollout", notes, lambda: im.status.content
@@ -156,8 +159,8 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
                 )
 
             def compare() -> None:
-                ui.open_tab(page, "Compare", "Episodes per task")
-                since = time.time()
+                ui.open_tab(page, "Compare", "Run two checkpoints on the")
+                since = time.time(), len(notes)
                 ui.click(page.get_by_role("button", name="Start", exact=True))
                 job = _job_done(
                     studio,
