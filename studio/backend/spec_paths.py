@@ -12,10 +12,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from studio.data.paths import SHIPPED_POLICY_DIR
+
 #: The checkpoint name of the scripted planner, which names no file.
 ORACLE = "oracle"
 #: Policies shipped with the studio.
-SHIPPED_POLICIES = Path(__file__).resolve().parents[1] / "policies"
+SHIPPED_POLICIES = SHIPPED_POLICY_DIR
 
 
 class SpecPathError(ValueError):

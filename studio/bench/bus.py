@@ -9,7 +9,13 @@ port, opens a teleop session, then measures, one phase after the other:
 * ``image_mb_per_s`` — raw RGB camera frames requested back to back (render + transfer), megabytes of
   payload per second (``image_fps`` alongside).
 
-Targets on a 2-core machine: p50 ≤ 5 ms, p99 ≤ 20 ms, pose stream ≥ 60 Hz.
+* ``job_submit_per_s_at_<n>_queued`` — jobs submitted per second (``JobSubmit`` round trips from a client
+  session to the hub's queue, one after the other) when ``n`` = 10, 1,000 and 10,000 jobs are already queued (a
+  kind no worker offers, so they stay queued); ``job_queue_idle_cpu`` — the share of a core this process uses
+  while the queue holds them all and nothing happens. Flat across the three levels: submitting costs O(log n).
+
+Targets on a 2-core machine: p50 ≤ 5 ms, p99 ≤ 20 ms, pose stream ≥ 60 Hz; job submission within a factor of
+2 from 10 to 10,000 queued, an idle queue under 2 % of a core. ``--phases jobs`` measures the queue alone.
 """
 
 from __future__ import annotations
@@ -38,9 +44,79 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", default="panda")
     parser.add_argument("--task", default="pick_place/cube->red")
     parser.add_argument("--control-hz", type=float, default=100.0, help="the worker's control rate")
+    parser.add_argument(
+        "--phases",
+        default="teleop,jobs",
+        help="comma-separated: teleop (with a sim worker), jobs (the queue alone)",
+    )
+    parser.add_argument(
+        "--queued", default="10,1000,10000", help="queue lengths at which job submission is timed"
+    )
+    parser.add_argument("--submits", type=int, default=200, help="submissions timed at each queue length")
 
 
 def measure(args: argparse.Namespace) -> dict:
+    phases = {p.strip() for p in args.phases.split(",") if p.strip()}
+    unknown = phases - {"teleop", "jobs"}
+    if unknown:
+        raise SystemExit(f"studio bench bus: unknown phases {sorted(unknown)}; choose from teleop, jobs")
+    out: dict = {}
+    if "jobs" in phases:
+        out.update(measure_job_queue([int(n) for n in args.queued.split(",")], args.submits))
+    if "teleop" in phases:
+        out.update(measure_teleop(args))
+    return out
+
+
+def measure_job_queue(levels: list[int], submits: int) -> dict:
+    """Submission rate at each queue length in ``levels`` and the idle cost of the full queue, on a hub queue of
+    this process (journal in a temporary directory) with a client in a second session over TCP loopback."""
+    from studio.backend.jobs import JobClient, JobQueue
+
+    port = bus.free_loopback_port()
+    endpoint = bus.loopback_endpoint(port)
+    session = bus.open_session(bus.BusConfig.hub([endpoint]))
+    client_session = bus.open_session(bus.BusConfig.worker([endpoint]))
+    directory = Directory(session)
+    tmp = tempfile.TemporaryDirectory(prefix="studio-bench-jobs-")
+    journal = os.path.join(tmp.name, "queue.json")
+    queue = JobQueue(session, directory, journal=journal)
+    client = JobClient(client_session)
+    out: dict = {}
+    queued = 0
+
+    def submit(n: int) -> float:
+        nonlocal queued
+        t0 = time.perf_counter()
+        for _ in range(n):
+            client.submit("bench", {"n": queued}, worker_kind="bench")
+            queued += 1
+        return time.perf_counter() - t0
+
+    try:
+        for level in sorted(levels):
+            if queued < level:
+                submit(level - queued)
+            seconds = submit(submits)
+            out[f"job_submit_per_s_at_{level}_queued"] = round(submits / seconds, 1)
+        time.sleep(1.5)  # the queue settles (pushed positions) before the idle measurement
+        cpu0, t0 = os.times(), time.monotonic()
+        time.sleep(3.0)
+        cpu1 = os.times()
+        busy = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / (time.monotonic() - t0)
+        out["job_queue_idle_cpu"] = round(busy, 4)
+        out["job_queue_jobs"] = len(queue.jobs())
+        out["job_journal_bytes"] = os.path.getsize(journal)
+        return out
+    finally:
+        queue.close()
+        directory.close()
+        client_session.close()
+        session.close()
+        tmp.cleanup()
+
+
+def measure_teleop(args: argparse.Namespace) -> dict:
     port = bus.free_loopback_port()
     endpoint = bus.loopback_endpoint(port)
     session = bus.open_session(bus.BusConfig.hub([endpoint]))

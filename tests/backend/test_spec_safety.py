@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import shutil
 import sys
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,6 @@ import pytest
 
 from studio.backend import bus
 from studio.backend.jobs import JobClient
-from studio.backend.spec_paths import SHIPPED_POLICIES, SpecPathError, checkpoint_path, inside_data_dir
 from studio.data.store import EpisodeStore
 
 from .conftest import wait_worker
@@ -24,7 +24,7 @@ from data_fixtures import make_recording
 
 pytestmark = pytest.mark.timeout(180)
 
-POLICY = SHIPPED_POLICIES / "pick-place-cpu.pt"
+POLICY = Path(__file__).resolve().parents[2] / "studio" / "policies" / "pick-place-cpu.pt"
 
 
 class _Planted:
@@ -68,6 +68,8 @@ def test_a_planted_decoder_is_never_unpickled(tmp_path):
 
 
 def test_spec_paths_stay_in_the_data_dir(tmp_path):
+    from studio.backend.spec_paths import SpecPathError, checkpoint_path, inside_data_dir
+
     data = tmp_path / "data"
     data.mkdir()
     assert inside_data_dir(data, "runs/a", "run_dir", "train") == data.resolve() / "runs" / "a"
@@ -117,7 +119,7 @@ def test_a_train_job_cannot_reach_outside_its_data_dir_and_its_spec_is_bounded(h
     workers.start("train", "t-safe", "--data-dir", str(data), handlers=(), only_handlers=False)
     wait_worker(hub.directory, "t-safe")
     client = JobClient(hub.session)
-    escape = "../../../tmp/x-" + tmp_path.name
+    escape = f"../../../tmp/x-{uuid.uuid4().hex}"
     target = (data / escape).resolve()
     job = client.submit("train", {"data_dir": escape, "run_dir": "runs/r", "steps": 2})
     with client.watch(job.job) as watch:
