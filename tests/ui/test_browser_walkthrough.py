@@ -138,6 +138,12 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
                     ui.click(page.get_by_role("button", name="Make a scripted demonstration"))
                     job = _job_done(studio, "expert", since, 300, "the scripted demonstration", notes)
                     assert job.state == "succeeded", f"scripted demonstration {job.state}: {job.reason}"
+                    ui.wait(
+                        lambda: not im.demo.value.startswith("("),
+                        30,
+                        "the scripted demonstration to be chosen",
+                        lambda: im.demo.options,
+                    )
                 since = time.time(), len(notes)
                 ui.click(page.get_by_role("button", name="Plan", exact=True))
                 job = _job_done(studio, "plan", since, 300, "the plan", notes, lambda: im.status.content)
