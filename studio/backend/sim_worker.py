@@ -190,7 +190,19 @@ class SimWorker:
             _, session_id, _ = keys.parse_session_key(str(sample.key_expr))
         except keys.KeyExprError:
             return
-        self._close_session(session_id, wait=False)
+        threading.Thread(
+            target=self._close_if_abandoned, args=(session_id, str(sample.key_expr)), daemon=True
+        ).start()
+
+    def _close_if_abandoned(self, session_id: str, key: str) -> None:
+        """Close the session unless a client token is still alive on its key (another peer's token that came and
+        went on the same key does not end the owner's session)."""
+        try:
+            alive = any(r.ok is not None for r in self.zsession.liveliness().get(key, timeout=1.0))
+        except zenoh.ZError:
+            alive = False
+        if not alive:
+            self._close_session(session_id, wait=False)
 
     def _close_session(self, session_id: str, wait: bool = True) -> bool:
         """Remove a session; its pending saves finish (in the background unless ``wait``)."""

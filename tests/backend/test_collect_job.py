@@ -7,6 +7,7 @@ import typing
 
 import pytest
 
+from studio.backend import bus
 from studio.backend.collect_job import Robot, SpecError, check_spec
 from studio.backend.job_runner import JOB_KINDS
 from studio.backend.jobs import JobClient, new_job_id
@@ -72,14 +73,15 @@ def test_collect_job_stores_episodes_with_progress_resumes_and_cancels(hub, work
     client = JobClient(hub.session)
 
     # Refused on arrival, before anything is simulated: failed, with the one line naming the field.
-    for raw, field, words in BAD[:4]:
-        final, result, _ = _events(client, {"scene": "pick_place", **raw}, timeout=60)
+    for raw, field, words in BAD[:4]:  # refused by the queue on arrival, with the worker's one line
+        with pytest.raises(bus.RemoteError) as e:
+            client.submit("collect", {"scene": "pick_place", **raw})
+        text = e.value.message
         assert (
-            final.state == "failed"
-            and f"collect job spec: {field}: " in final.reason
-            and words in final.reason
+            e.value.code == "bad_request"
+            and text.startswith(f"collect job spec: {field}: ")
+            and words in text
         )
-        assert result is None
     assert not EpisodeStore(root).episodes()
 
     # Two episodes of each of two tasks (one held out, as studio collect allows for demonstrations).

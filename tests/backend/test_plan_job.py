@@ -56,7 +56,7 @@ def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
     assert result["guidance"] is None and "null_waypoints_world" not in plan
 
     # A guided policy's plan comes with its plan from the scene alone and says whether (and why) it was guided.
-    guided = write_tiny_checkpoint(tmp_path / "guided" / "best.pt", guidance=3.0)
+    guided = write_tiny_checkpoint(root / "runs" / "guided" / "best.pt", guidance=3.0)  # in the data dir
     guided_result = _succeeded(
         client, "plan", {"checkpoint": str(guided), "expert_episode_id": episode, "task": TASK, "seed": 3}
     )
@@ -65,7 +65,7 @@ def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
     info = guided_result["guidance"]
     assert (info["scale"], info["gate"], info["guided"]) == (3.0, 0.0, True) and info["gain"] > 0
 
-    bad = client.submit("plan", {"checkpoint": str(tmp_path / "missing.pt"), "expert_episode_id": episode,
+    bad = client.submit("plan", {"checkpoint": str(root / "missing.pt"), "expert_episode_id": episode,
                                  "task": TASK, "seed": 3})  # fmt: skip
     with client.watch(
         bad.job

@@ -278,8 +278,14 @@ def test_only_the_opener_controls_its_session(site):
             assert (
                 frame.ack_seq < 2**62 and abs(frame.ee_pos[2] - start[2]) < 0.05
             )  # not sent to the forged z
+            # A token of another peer that comes and goes on the client key does not end the owner's session.
+            other.liveliness().declare_token(
+                keys.session_key("sim-local", client.session_id, "client")
+            ).undeclare()
+            time.sleep(2.0)
             state = client.state.wait_until(lambda s: s.recorded_steps >= 20, 5.0)
             assert state is not None and state.state == "recording", state
+            assert client.request_frame().camera == "external"  # the session is still open
             saved = client.stop_recording(timeout=120)  # the owner's recording survived the attempts
             assert isinstance(saved, msg.EpisodeSaved), saved
     finally:
