@@ -8,6 +8,7 @@ import time
 
 import pytest
 
+from studio.backend import bus
 from studio.backend.jobs import JobClient
 from studio.data.collect import CollectConfig, collect
 from studio.data.store import EpisodeStore
@@ -61,8 +62,9 @@ def test_bad_compare_specs_fail_with_the_reason(hub, workers, root):
     workers.start("sim", "sim-d", "--data-dir", str(root), handlers=(), only_handlers=False)
     wait_worker(hub.directory, "sim-d")
     client = JobClient(hub.session)
-    for spec, says in (({"a": "oracle"}, "lacks ['b']"),
-                       ({"a": "oracle", "b": "oracle", "tasks": "pick_place/ball->red"}, "unknown task"),
+    with pytest.raises(bus.RemoteError, match=r"bad_request: compare job spec lacks \['b'\]"):  # on arrival
+        client.submit("compare", {"a": "oracle"})
+    for spec, says in (({"a": "oracle", "b": "oracle", "tasks": "pick_place/ball->red"}, "unknown task"),
                        ({"a": "missing.pt", "b": "oracle", "tasks": [TASK]}, "no checkpoint file")):  # fmt: skip
         job = client.submit("compare", spec)
         with client.watch(job.job) as w:

@@ -7,6 +7,7 @@ import time
 
 import pytest
 
+from studio.backend import bus
 from studio.backend.jobs import JobClient
 from studio.data.collect import CollectConfig, collect
 from studio.data.store import EpisodeStore
@@ -83,10 +84,17 @@ def test_bad_rollout_spec_fails_with_the_reason(hub, workers, demo):
     workers.start("sim", "sim-2", "--data-dir", str(root), handlers=(), only_handlers=False)
     wait_worker(hub.directory, "sim-2")
     client = JobClient(hub.session)
-    job = client.submit("rollout", {"checkpoint": "oracle", "task": TASK, "seed": 1})
+    with pytest.raises(
+        bus.RemoteError, match="bad_request: rollout job spec lacks"
+    ) as e:  # refused on arrival
+        client.submit("rollout", {"checkpoint": "oracle", "task": TASK, "seed": 1})
+    assert "expert_episode_id" in e.value.message
+    job = client.submit(
+        "rollout", {"checkpoint": "/etc/passwd", "expert_episode_id": "e", "task": TASK, "seed": 1}
+    )  # well-formed, but the worker reads no file outside its data dir
     with client.watch(job.job) as w:
         final = w.wait(timeout=60)
-    assert final.state == "failed" and "expert_episode_id" in final.reason
+    assert final.state == "failed" and "neither in the worker's data dir" in final.reason, final.reason
 
 
 def test_sim_worker_killed_mid_rollout_is_reported_within_5_s(hub, workers, demo):
