@@ -74,7 +74,9 @@ def test_active_checkpoint_defaults_persists_and_falls_back(tmp_path):
     (policies / "osvi-pick-place.json").write_text(
         '{"summary": "3 % held-out success"}'
     )  # its measured results
-    assert reg.active("pick_place").label == "shipped policy osvi-pick-place", "the summary stays out of lists"
+    assert reg.active("pick_place").label == "shipped policy osvi-pick-place", (
+        "the summary stays out of lists"
+    )
     assert reg.active("pick_place").summary == "3 % held-out success"
     _run(tmp_path / "data", "train-a")
     reg.set_active("train-a/best")
