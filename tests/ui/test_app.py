@@ -27,6 +27,7 @@ def _bare_tab() -> StudioTab:
     tab._closed = threading.Event()
     tab._executor = ThreadPoolExecutor(max_workers=1)
     tab._actions, tab._actions_lock = [], threading.Lock()
+    tab._notices, tab._notices_lock = {}, threading.Lock()
     tab.app = SimpleNamespace()
     return tab
 
