@@ -152,7 +152,10 @@ class StudioTab:
             try:
                 fn()
             except Exception as e:
-                log.warning("tab %s: %s failed:\n%s", self.client.client_id, what, traceback.format_exc())
+                if isinstance(e, (ValueError, bus.RemoteError)):  # the person's to act on: said, not a fault
+                    log.info("tab %s: %s refused: %s", self.client.client_id, what, _describe(e))
+                else:
+                    log.warning("tab %s: %s failed:\n%s", self.client.client_id, what, traceback.format_exc())
                 self.notify(f"Could not finish {what}", _describe(e), error=True)
             finally:
                 with self._actions_lock:

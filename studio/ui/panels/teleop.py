@@ -274,6 +274,7 @@ class TeleopPanel:
             self.preview.image = np.zeros((*PREVIEW_SIZE, 3), np.uint8)
         self.info = self.client.open(scene, robot, task, seed)
         self._rest_pending, self._target, self._goal = True, None, None
+        self._gripper = 0.0  # a reset scene's gripper is open
         self._recording = False
         self._set_recording_ui(False)
         self._streaming = False  # a (re-)opened session streams nothing until the live view asks
@@ -360,6 +361,7 @@ class TeleopPanel:
             self.tab.notify("Recording discarded", "Resetting the scene discarded the unsaved recording.")
         self.info = self.client.reset(task, seed)
         self._rest_pending, self._target, self._goal = True, None, None
+        self._gripper = 0.0  # a reset scene's gripper is open
         if self._recording:
             self._drop_draft()
         self._recording = False
@@ -653,6 +655,7 @@ class TeleopPanel:
         try:
             self.client.start_recording(role=role, reset=True, draft=draft)
             self._rest_pending, self._target, self._goal = True, None, None
+            self._gripper = 0.0  # a reset scene's gripper is open
         except BaseException:
             self.app.drafts.discard(draft)
             raise

@@ -93,6 +93,9 @@ class TrainPanel:
         self._auto_steps: int | None = (
             None  # the Steps value the panel proposed (kept until the user edits it)
         )
+        self._pairs: int | None = (
+            None  # training pairs of the ticked tasks at the last count (None: not counted)
+        )
         self._plan: dict[str, Any] = {}  # the runs Start and Fine-tune would queue, from the last count
         gui = tab.client.gui
         self.gui = gui
@@ -397,8 +400,9 @@ class TrainPanel:
 
     def _enable_buttons(self, running: bool) -> None:
         idle = not running and not self._submitting
-        if self.start.disabled == idle:
-            self.start.disabled = not idle
+        can_start = idle and self._pairs != 0  # no pairs: the line above Start says what to record
+        if self.start.disabled == can_start:
+            self.start.disabled = not can_start
         if self.fine_tune.disabled == idle:
             self.fine_tune.disabled = not idle
         if self.cancel.disabled != (not running):
@@ -432,6 +436,7 @@ class TrainPanel:
         left = count.left_out()
         text = count.summary() + "." + ("  \nLeft out: " + "; ".join(left) + "." if left else "")
         self._set(self.pairs, text)
+        self._pairs = count.pairs
         self._show_plan(run, count.pairs, bad_override)
         self._show_fine_tune(active, split)
 
@@ -453,7 +458,12 @@ class TrainPanel:
         """Steps proposed for Start (the configuration's epochs over the pairs, until the user types another
         number) and the batch, the steps and the expected wall time of the run it would queue."""
         if pairs == 0:
-            self._set(self.plan, prefix + "Start needs at least one training pair.")
+            self._set(
+                self.plan,
+                prefix
+                + "Start needs at least one training pair: record or collect a successful demonstration "
+                "and a successful agent episode of the same training task.",
+            )
             return
         fitted, note = fit_batch(run, pairs)
         proposed = steps_for(fitted.train, pairs)
