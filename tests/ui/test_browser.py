@@ -195,7 +195,7 @@ def test_teleop_records_and_saves_an_episode(studio, page, shots):
         "the arm to follow",
     )
     assert tab.pose_pushes > 30 and studio.stats.ack_ms, "poses must reach the page and drags be acknowledged"
-    ui.click(page.get_by_role("checkbox").first)  # the user's verdict overrides the task's check
+    ui.click(page.get_by_role("checkbox", name="Success"))  # the user's verdict overrides the task's check
     ui.wait(lambda: tp.success.value and tp._success_touched, 10, "the success box to be ticked")
     ui.shot(page, shots / "teleop-recording.png")
     assert ui.colours(shots / "teleop-recording.png") > 300, "the 3D view looks blank"
@@ -551,7 +551,8 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
     im.task.value = PUSH_HELD_OUT + " (held-out)"
     ui.wait(lambda: f"**push** tasks: `{push.id}`" in im.policy.content, 20, "the push policy line",
           lambda: im.policy.content)  # fmt: skip
-    assert push.summary and push.summary in im.policy.content, "its measured results are shown"
+    ui.wait(lambda: push.summary and push.summary in im.policy_details.content, 20,
+            "its measured results one fold away", lambda: im.policy_details.content)  # fmt: skip
     page.get_by_text("default/push-cpu").first.wait_for(timeout=30_000)
     im.seed.value = 3
     before_demo = im.expert_job
