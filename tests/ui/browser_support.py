@@ -68,18 +68,18 @@ def colours(path: Path, box=(0, 0, 700, 700)) -> int:
 
 def shot(page, path: Path, scroll_to: str | None = None) -> None:
     """A screenshot for people to look at; a machine too loaded to render one in time only warns."""
-    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+    from playwright.sync_api import Error as PlaywrightError
 
     if scroll_to is not None:
         try:
             page.get_by_text(scroll_to).first.scroll_into_view_if_needed(timeout=45_000)
-        except PlaywrightTimeout:
+        except PlaywrightError:  # timed out, or the text was re-rendered while scrolling: no picture lost
             warnings.warn(f"could not scroll to {scroll_to!r} for {path.name}", stacklevel=2)
     for attempt in range(2):
         try:
             page.screenshot(path=str(path), timeout=45_000)
             return
-        except PlaywrightTimeout:
+        except PlaywrightError:
             if attempt:
                 warnings.warn(f"no screenshot {path.name}: the page did not render in time", stacklevel=2)
 
