@@ -12,10 +12,10 @@ import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from studio.backend import bus
+from studio.bench.click_demo import screen_point  # noqa: F401 (the tests' name for it)
 from studio.bench.ui import CHROMIUM, CHROMIUM_ARGS, WEBGL_ARGS
 
 THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window);
@@ -177,17 +177,3 @@ def stop_and_save(page, tab) -> None:
         "the episode to be stored",
         lambda: teleop_state(tab),
     )
-
-
-def screen_point(page, client, point: np.ndarray) -> tuple[float, float]:
-    """Where a world point appears on the page (viser cameras follow OpenCV: +z forward, +y down)."""
-    import viser.transforms as vtf
-
-    x0, y0, w, h = page.evaluate(
-        "() => { const r = document.querySelector('canvas').getBoundingClientRect(); return [r.x, r.y, r.width, r.height]; }"
-    )
-    cam = client.camera
-    R = vtf.SO3(np.asarray(cam.wxyz)).as_matrix()
-    p = R.T @ (np.asarray(point) - np.asarray(cam.position))
-    f = (h / 2) / np.tan(cam.fov / 2)
-    return x0 + w / 2 + f * p[0] / p[2], y0 + h / 2 + f * p[1] / p[2]
