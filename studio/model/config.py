@@ -50,6 +50,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from studio.model.config_overrides import parse_overrides
+
 
 @dataclass
 class ModelConfig:
@@ -358,23 +360,19 @@ class RunConfig:
         )
 
     def with_overrides(self, assignments: list[str]) -> RunConfig:
-        """A copy with ``section.field=value`` assignments applied (values parsed as JSON, else as strings)."""
-        import json
+        """A copy with ``section.field=value`` assignments applied, each value read as its field's declared type
+        (:mod:`studio.model.config_overrides`); ``ValueError`` with one line naming a bad field or value."""
+        changes = parse_overrides(assignments, {"model": ModelConfig, "train": TrainConfig})
+        return self.with_changes(model=changes["model"], train=changes["train"])
 
-        d = self.to_dict()
-        for item in assignments:
-            key, sep, raw = item.partition("=")
-            section, dot, name = key.strip().partition(".")
-            if not sep or not dot or section not in d:
-                raise ValueError(f"override {item!r} must look like model.field=value or train.field=value")
-            if name not in d[section]:
-                raise ValueError(f"unknown {section} field {name!r}; known: {', '.join(sorted(d[section]))}")
-            try:
-                value = json.loads(raw)
-            except json.JSONDecodeError:
-                value = raw
-            d[section][name] = value
-        return RunConfig.from_dict(d)
+    def with_changes(
+        self, *, model: dict[str, Any] | None = None, train: dict[str, Any] | None = None
+    ) -> RunConfig:
+        """A copy with typed field values replaced in either half (validated as a new configuration is)."""
+        return RunConfig(
+            dataclasses.replace(self.model, **(model or {})),
+            dataclasses.replace(self.train, **(train or {})),
+        )
 
 
 def _from_dict(cls, d: dict[str, Any]):
@@ -499,30 +497,36 @@ def fine_tune_steps(pairs: int) -> int:
     return min(hi, max(lo, math.ceil(FINE_TUNE_EPOCHS * (pairs // batch))))
 
 
-def fine_tune_config(saved: dict[str, Any], pairs: int, overrides: list[str] | None = None) -> RunConfig:
+def fine_tune_config(
+    saved: dict[str, Any],
+    pairs: int,
+    overrides: list[str] | None = None,
+    train: dict[str, Any] | None = None,
+) -> RunConfig:
     """The configuration that fine-tunes the policy whose checkpoint configuration is ``saved`` on ``pairs``
     training pairs: its own network and settings (augmentation, frozen parts, whose demonstrations it learnt
-    from) with the schedule above, then ``overrides`` (``section.field=value``; a ``train.max_steps`` there sets
-    the length)."""
+    from) with the schedule above, then ``overrides`` (``section.field=value``), then the typed ``train`` field
+    values (a ``max_steps`` in either sets the length)."""
     if pairs < 1:
         raise ValueError("there are no training pairs to fine-tune on")
     steps = fine_tune_steps(pairs)
-    schedule = [
-        f"train.batch_size={min(FINE_TUNE_BATCH, pairs)}",
-        f"train.max_steps={steps}",
-        f"train.lr_max={FINE_TUNE_LR}",
-        "train.lr_warmup=0.1",
-        "train.alpha_warmup=0",
-        "train.aug_warmup=0",
-        "train.num_workers=0",
-        f"train.val_every={steps}",
-        "train.val_batches=4",
-        "train.checkpoint_every=10",
-        "train.log_every=1",
-    ]
-    run = RunConfig.from_dict(saved).with_overrides(schedule + list(overrides or []))
+    schedule = {
+        "batch_size": min(FINE_TUNE_BATCH, pairs),
+        "max_steps": steps,
+        "lr_max": FINE_TUNE_LR,
+        "lr_warmup": 0.1,
+        "alpha_warmup": 0.0,
+        "aug_warmup": 0.0,
+        "num_workers": 0,
+        "val_every": steps,
+        "val_batches": 4,
+        "checkpoint_every": 10,
+        "log_every": 1,
+    }
+    run = RunConfig.from_dict(saved).with_changes(train=schedule).with_overrides(list(overrides or []))
+    run = run.with_changes(train=dict(train or {}))
     if run.train.val_every < run.train.max_steps:  # a longer run asked for: validate at its end, not midway
-        run = run.with_overrides([f"train.val_every={run.train.max_steps}"])
+        run = run.with_changes(train={"val_every": run.train.max_steps})
     return run
 
 

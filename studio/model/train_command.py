@@ -157,26 +157,26 @@ def prepare_run(
     ``ValueError`` for a bad override or ``init``.
     """
     extra = list(overrides or [])
+    typed: dict[str, Any] = {}
     if steps is not None:
-        extra.append(f"train.max_steps={steps}")
+        typed["max_steps"] = steps
     if seed is not None:
-        extra.append(f"train.seed={seed}")
+        typed["seed"] = seed
     saved: dict[str, Any] | None = None
     if fine_tune:
         if init is None:
             raise ValueError("fine-tuning starts from a policy: name its checkpoint or policy file (--init)")
         saved = init_config(init)
-        cfg = RunConfig.from_dict(saved).with_overrides(
-            extra
-        )  # the data side: image size, frames, embodiments
+        start = RunConfig.from_dict(saved)  # the data side: image size, frames, embodiments
     else:
-        cfg = preset(config, scene_of(scene)).with_overrides(extra)
+        start = preset(config, scene_of(scene))
+    cfg = start.with_overrides(extra).with_changes(train=typed)
     train_set, val_set = open_splits(root, cfg, scene, progress=progress)
     if len(train_set) == 0:
         sentence = count_training_pairs(root, cfg, scene).what_to_record()
         raise NoTrainingPairs(sentence or f"No training pairs in {root}: record or collect episodes first.")
     if saved is not None:
-        cfg = fine_tune_config(saved, len(train_set), extra)
+        cfg = fine_tune_config(saved, len(train_set), extra, typed)
     cfg, note = fit_batch(cfg, len(train_set))
     return PreparedRun(cfg, train_set, val_set, [note] if note else [])
 

@@ -110,3 +110,103 @@ def test_expert_embodiments_parse_and_are_checked():
     assert RunConfig.from_dict(run.to_dict()).train.expert_embodiments == ("human",)
     with pytest.raises(ValueError, match=r"expert_embodiments.*robot"):
         TrainConfig(expert_embodiments="robot")
+
+
+def test_a_mistyped_bool_is_refused_with_the_field_its_type_and_the_value():
+    """``flase`` used to become the truthy string 'flase', silently keeping the world model."""
+    with pytest.raises(ValueError) as err:
+        preset("cpu").with_overrides(["model.world_model=flase"])
+    assert str(err.value) == "model.world_model: expected bool (true/false/1/0), got 'flase'"
+
+
+@pytest.mark.parametrize(
+    ("raw", "expected"), [("true", True), ("FALSE", False), ("1", True), ("0", False), ("True", True)]
+)
+def test_bools_read_true_false_one_zero_in_any_case(raw, expected):
+    assert preset("cpu").with_overrides([f"model.world_model={raw}"]).model.world_model is expected
+
+
+@pytest.mark.parametrize("raw", ["yes", "2", "", "none"])
+def test_other_bool_texts_are_refused(raw):
+    with pytest.raises(ValueError, match=r"^model\.world_model: expected bool"):
+        preset("cpu").with_overrides([f"model.world_model={raw}"])
+
+
+def test_numbers_are_read_as_their_fields_declare():
+    run = preset("cpu").with_overrides(["train.lr_max=3e-4", "train.batch_size=12", "train.epochs=3"])
+    assert run.train.lr_max == 3e-4 and run.train.batch_size == 12
+    assert run.train.epochs == 3.0 and isinstance(run.train.epochs, float)
+    with pytest.raises(ValueError) as err:
+        preset("cpu").with_overrides(["train.lr_max=3e-4x"])
+    assert str(err.value) == "train.lr_max: expected float, got '3e-4x'"
+    for bad in ("3.5", "3e-4x", "1e3", "four"):
+        with pytest.raises(ValueError, match=rf"^train\.batch_size: expected int, got '{bad}'$"):
+            preset("cpu").with_overrides([f"train.batch_size={bad}"])
+    with pytest.raises(ValueError, match="expected float, got 'nan'"):
+        preset("cpu").with_overrides(["train.lr_max=nan"])
+
+
+def test_literal_fields_take_one_of_their_choices():
+    assert preset("cpu").with_overrides(["model.action_attention=cross"]).model.action_attention == "cross"
+    with pytest.raises(ValueError) as err:
+        preset("cpu").with_overrides(["model.action_attention=full"])
+    assert str(err.value) == "model.action_attention: expected one of 'joint', 'divided', 'cross', got 'full'"
+
+
+def test_sequences_take_a_json_array_or_comma_separated_items_of_their_element_type():
+    run = preset("cpu").with_overrides(
+        [
+            "model.image_size=48,64",
+            "train.freeze=encoder, head",
+            "train.scale=[0.9, 1.1]",
+            "model.demo_task_classes=2",
+            "model.demo_task_groups=[2]",
+            "model.demo_task_table=[[0], [1]]",
+        ]
+    )
+    assert run.model.image_size == (48, 64) and run.train.freeze == ("encoder", "head")
+    assert run.train.scale == (0.9, 1.1) and run.model.demo_task_table == ((0,), (1,))
+    assert preset("cpu").with_overrides(["train.freeze="]).train.freeze == ()
+    with pytest.raises(
+        ValueError, match=r"^model\.image_size: expected tuple\[int, int\], got '\[48, 64, 3\]'$"
+    ):
+        preset("cpu").with_overrides(["model.image_size=[48, 64, 3]"])
+    with pytest.raises(ValueError, match=r"^model\.image_size: expected tuple\[int, int\], got '48,6\.5'$"):
+        preset("cpu").with_overrides(["model.image_size=48,6.5"])
+    with pytest.raises(ValueError, match=r"^model\.demo_task_table: expected"):
+        preset("cpu").with_overrides(["model.demo_task_table=[[0], [true, 1.5]]"])
+    with pytest.raises(ValueError, match=r"^train\.scale: expected"):
+        preset("cpu").with_overrides(["train.scale=[0.9, 1.1"])
+
+
+def test_optional_and_list_types_are_read_by_their_element_type():
+    from studio.model.config_overrides import parse_value
+
+    assert parse_value("x.steps", "none", int | None) is None
+    assert parse_value("x.steps", "NULL", int | None) is None
+    assert parse_value("x.steps", "7", int | None) == 7
+    assert parse_value("x.names", "a,b", list[str]) == ["a", "b"]
+    assert parse_value("x.sizes", "[1, 2, 3]", list[int]) == [1, 2, 3]
+    with pytest.raises(ValueError, match=r"^x\.steps: expected int or none, got '7\.5'$"):
+        parse_value("x.steps", "7.5", int | None)
+    with pytest.raises(ValueError, match=r"^x\.sizes: expected list\[int\], got '\[1, 2\.5\]'$"):
+        parse_value("x.sizes", "[1, 2.5]", list[int])
+
+
+def test_an_unknown_field_names_the_closest_one():
+    with pytest.raises(ValueError, match=r"unknown model field 'wrld_model'; did you mean 'world_model'\?"):
+        preset("cpu").with_overrides(["model.wrld_model=false"])
+    with pytest.raises(ValueError, match=r"unknown train field 'zzz'; known: alpha, "):
+        preset("cpu").with_overrides(["train.zzz=1"])
+
+
+def test_typed_changes_are_validated_like_a_new_configuration():
+    run = preset("cpu").with_changes(train={"max_steps": 9, "seed": 4})
+    assert (run.train.max_steps, run.train.seed) == (9, 4) and run.model == preset("cpu").model
+    with pytest.raises(ValueError, match="mixup_min"):
+        preset("cpu").with_changes(train={"mixup_min": 0.0})
+
+
+def test_a_text_may_be_written_as_a_json_string():
+    run = preset("cpu").with_overrides(['train.precision="bf16"', 'train.demo_task_labels="parts"'])
+    assert (run.train.precision, run.train.demo_task_labels) == ("bf16", "parts")

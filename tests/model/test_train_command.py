@@ -92,6 +92,14 @@ def test_bad_override_is_a_clear_error(capsys):
     assert "unknown model field" in capsys.readouterr().err
 
 
+def test_a_mistyped_override_exits_non_zero_with_one_line_through_the_cli(capsys):
+    from studio.cli import main
+
+    assert main(["train", "--data", "x", "--out", "y", "--set", "model.world_model=flase"]) == 2
+    err = capsys.readouterr().err
+    assert err == "studio train: model.world_model: expected bool (true/false/1/0), got 'flase'\n"
+
+
 def test_missing_arguments_exit():
     with pytest.raises(SystemExit):
         _args("--out", "y")
