@@ -616,6 +616,66 @@ class EpisodeStored(Message, frozen=True):
     episode: Name
 
 
+# ---------------------------------------------------------------------------------------------- artifacts
+#: A file's content id: the hex SHA-256 of its bytes.
+ContentId = Annotated[str, msgspec.Meta(pattern=r"^[0-9a-f]{64}$")]
+#: A path relative to a data directory ('/'-separated, no '..', no leading '/').
+DataPath = Annotated[
+    str, msgspec.Meta(pattern=r"^(?!.*(^|/)\.\.?(/|$))[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*$", max_length=1024)
+]
+
+
+class BlobGet(Message, frozen=True):
+    """Ask a holder of content ``blob`` for its piece ``index``."""
+
+    blob: ContentId
+    index: Count
+
+
+class BlobPart(Message, frozen=True):
+    """Piece ``index`` of ``count`` of content ``blob`` (``size`` bytes in all); ``digest`` is the piece's SHA-256."""
+
+    blob: ContentId
+    index: Count
+    count: Annotated[int, msgspec.Meta(ge=1, le=1_000_000)]
+    size: Count
+    digest: ContentId
+    data: bytes
+
+    def __post_init__(self) -> None:
+        if self.index >= self.count:
+            raise ValueError(f"BlobPart.index {self.index} is not below count {self.count}")
+
+
+class BlobOffer(Message, frozen=True):
+    """To the store host: fetch content ``blob`` (``size`` bytes) from ``holder`` and keep it at ``path`` in the
+    data directory (a job's output: a checkpoint, a plan, a run's metrics)."""
+
+    holder: Id
+    blob: ContentId
+    size: Count
+    path: DataPath
+
+
+class EpisodeOffer(Message, frozen=True):
+    """To the store host: fetch the files of stored episode ``episode`` (file name -> content id, sizes in
+    ``sizes``) from ``holder`` and add them to the store as they are; ``rollout`` is the catalog row of the
+    rollout it records (its ``path`` relative to the data directory), if any."""
+
+    holder: Id
+    episode: Id
+    files: dict[Name, ContentId]
+    sizes: dict[Name, Count]
+    rollout: dict[str, Any] | None = None
+
+
+class BlobStored(Message, frozen=True):
+    """Answer to :class:`BlobOffer` and :class:`EpisodeOffer`: the content is in the store host's data directory."""
+
+    blob: ContentId
+    path: DataPath
+
+
 # ---------------------------------------------------------------------------------------------- codec
 #: Every message class, in documentation order.
 MESSAGE_TYPES: tuple[type[Message], ...] = tuple(

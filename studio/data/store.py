@@ -216,12 +216,34 @@ class EpisodeStore:
         self._commit(ep, rollout=rollout)
         return rollout
 
+    def add_episode_files(
+        self, directory: str | os.PathLike, rollout: RolloutRecord | None = None
+    ) -> EpisodeMeta:
+        """Store, byte for byte and under its own id, an episode whose files another store wrote (``directory``
+        holds them, e.g. as received from a worker's store); ``rollout`` is the row of the rollout it records."""
+        directory = Path(directory)
+        meta, _ = read_meta(directory)
+        read_arrays(directory)  # refuses a malformed arrays file before anything is stored
+        if rollout is not None:
+            rollout.episode_id = meta.id
+
+        def copy_files(work: Path) -> list[Path]:
+            return [Path(shutil.copyfile(directory / name, work / name)) for name in EPISODE_FILES]
+
+        self._commit_files(meta, rollout, copy_files)
+        return meta
+
     def _stage(self, name: str) -> None:
         if self._stage_hook is not None:
             self._stage_hook(name)
 
     def _commit(self, ep: Episode, rollout: RolloutRecord | None) -> None:
-        eid = ep.meta.id
+        self._commit_files(ep.meta, rollout, lambda work: write_episode_files(ep, work, crf=self.crf))
+
+    def _commit_files(
+        self, meta: EpisodeMeta, rollout: RolloutRecord | None, write_files: Callable[[Path], list[Path]]
+    ) -> None:
+        eid = meta.id
         if "/" in eid or eid.startswith("."):
             raise StoreError(f"invalid episode id {eid!r}")
         lock_path = self.tmp_dir / f"{eid}.lock"
@@ -234,7 +256,7 @@ class EpisodeStore:
                 raise StoreError(f"episode {eid} already exists")
             work.mkdir()
             try:
-                for path in write_episode_files(ep, work, crf=self.crf):
+                for path in write_files(work):
                     _fsync_path(path)
                 _fsync_path(work, directory=True)
             except BaseException:
@@ -247,13 +269,13 @@ class EpisodeStore:
             self._stage("renamed")
             try:
                 with self.catalog.transaction():
-                    self.catalog.insert_episode(ep.meta)
+                    self.catalog.insert_episode(meta)
                     if rollout is not None:
                         self.catalog.add_rollout(rollout)
             except BaseException as e:
                 self._remove_dir(final)
                 if isinstance(e, Exception):
-                    raise StoreError(f"episode {eid} ({ep.meta.task}) was not stored: {e}") from e
+                    raise StoreError(f"episode {eid} ({meta.task}) was not stored: {e}") from e
                 raise
             self._stage("committed")
         finally:

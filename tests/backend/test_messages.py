@@ -156,6 +156,17 @@ EXAMPLES: list[msg.Message] = [
     msg.EpisodeCommit(transfer="t1", count=2, sha256="0" * 64, role="agent", source="teleop"),
     msg.ChunkAck(transfer="t1", index=1),
     msg.EpisodeStored(transfer="t1", episode="e1"),
+    msg.BlobGet(blob="a" * 64, index=2),
+    msg.BlobPart(blob="a" * 64, index=0, count=1, size=3, digest="b" * 64, data=b"abc"),
+    msg.BlobOffer(holder="sim-1", blob="a" * 64, size=3, path="plans/j1.npz"),
+    msg.EpisodeOffer(
+        holder="sim-1",
+        episode="e1",
+        files={"meta.json": "a" * 64},
+        sizes={"meta.json": 3},
+        rollout={"id": "r-1", "task": "pick_place/bar->blue", "success": True},
+    ),
+    msg.BlobStored(blob="a" * 64, path="episodes/e1"),
     msg.OpenSession(
         scene="pick_place",
         robot="panda",
