@@ -386,12 +386,12 @@ def _from_dict(cls, d: dict[str, Any]):
 PRESETS = ("paper", "paper-metaworld", "cpu")
 #: Training settings the ``cpu`` preset adds for one scene, each measured (docs/experiments.md); a scene not listed
 #: (Meta-World) gets the preset as it is. The demonstration-task loss: on pick-and-place it was the only setting
-#: that found the demonstrated object; on Meta-World it made held-out success collapse (14.5 % → 0 %); on push
-#: it taught "the blue box goes forward" (the only blue task in training) and held the unseen ``blue-backward``
-#: at 0–5 %, against 100 % without it on two seeds. Push instead mirrors the expert video alone half the time
-#: (its two box slots swap per episode, so "push where the demonstration pushed" must not pay) and turns each
-#: pair's hue by one shared random angle half the time, so that a box's colour stops predicting the direction
-#: it is pushed in.
+#: that found the demonstrated object; on Meta-World it made held-out success collapse; on push it taught "the
+#: blue box goes forward" (the only blue task in training) and held the unseen ``blue-backward`` far below the
+#: runs without it. Push instead mirrors the expert video alone half the time (its two box slots swap per episode,
+#: so "push where the demonstration pushed" must not pay) and turns each pair's hue by one shared random angle half
+#: the time, so that a box's colour stops predicting the direction it is pushed in. The measurements: "Does the
+#: demonstration-task loss help?" and "What made push's unseen task work?" in docs/experiments.md.
 SCENE_TRAIN_SETTINGS: dict[str, dict[str, Any]] = {
     "pick_place": {"demo_task_weight": 1.0},
     "push": {"expert_hflip": 0.5, "pair_hue": 0.5},
@@ -480,10 +480,10 @@ def fit_batch(run: RunConfig, pairs: int) -> tuple[RunConfig, str | None]:
 
 
 #: The fine-tuning schedule: a batch of at most ``FINE_TUNE_BATCH`` pairs, ``FINE_TUNE_EPOCHS`` passes over the
-#: pairs bounded to ``FINE_TUNE_STEPS`` steps (a few minutes on 2 cores), a learning rate ``FINE_TUNE_LR`` a fifth of
-#: the ``cpu`` preset's (the policy is adjusted, not retrained), no warm-ups of the world-model loss or of the
-#: augmentation (the policy was trained past them), validation only at the end, a checkpoint every 10 steps. The
-#: measured wall time and held-out success are in docs/results.md ("Fine-tuning the active policy").
+#: pairs bounded to ``FINE_TUNE_STEPS`` steps, a learning rate ``FINE_TUNE_LR`` a fifth of the ``cpu`` preset's
+#: (the policy is adjusted, not retrained), no warm-ups of the world-model loss or of the augmentation (the policy
+#: was trained past them), validation only at the end, a checkpoint every 10 steps. The measured wall time and
+#: held-out success are in docs/results.md ("Fine-tuning the active policy").
 FINE_TUNE_BATCH = 8
 FINE_TUNE_EPOCHS = 4.0
 FINE_TUNE_STEPS = (20, 60)

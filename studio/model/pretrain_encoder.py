@@ -9,7 +9,7 @@ error on RGB in [0, 1] at half the frame's size, Gaussian noise of ``noise_std``
 target keeps the decoder cheap — the encoder's backward pass is most of a step). With 128 numbers for a frame
 the keypoints have to follow what changes between frames (Finn et al. 2016, "Deep spatial autoencoders for
 visuomotor learning"). Measured on Meta-World they mostly follow the arm, and a run started from them generalised
-worse than one started from random weights (docs/results.md), so no recipe there uses this stage.
+worse than one started from random weights (docs/experiments.md), so no recipe there uses this stage.
 
 Frames are the expert and agent frames of pairs from the chosen tasks' stored episodes (``tasks="train"``: the
 split's training tasks; ``"all"``: every task of the scene, held-out ones included — their frames only, which
