@@ -20,7 +20,7 @@ if [[ ! "$extras" =~ ^[A-Za-z0-9_,-]*$ ]]; then
   exit 2
 fi
 
-apt_pkgs=(libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libglx-mesa0 libosmesa6)
+apt_pkgs=(libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libglx-mesa0 libosmesa6 openssl)  # openssl: `studio bus credentials`
 if [ "$browser" = 1 ]; then apt_pkgs+=(chromium); fi
 missing=()
 for p in "${apt_pkgs[@]}"; do

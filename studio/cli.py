@@ -48,6 +48,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "worker": ("studio.backend.worker", "run a sim or training worker that joins the studio's bus"),
     "hub": ("studio.backend.hub", "run the studio's bus, job queue and store without the browser UI"),
+    "bus": (
+        "studio.backend.credentials",
+        "bus credentials: a CA, certificates, passwords and a Zenoh config per role (hub, sim, train, ui)",
+    ),
 }
 
 

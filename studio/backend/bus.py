@@ -2,9 +2,13 @@
 
 Defaults keep the bus private to the machine: no multicast scouting, and every endpoint the studio
 opens by itself is on ``127.0.0.1``. The UI host (the *hub*) runs a Zenoh router listening on
-``tcp/127.0.0.1:7447``; workers are Zenoh clients connecting to it. Going multi-machine means only
-changing endpoints (``--listen tcp/0.0.0.0:7447`` on the hub, ``--connect tcp/<hub>:7447`` on workers);
-see ``docs/deployment.md``.
+``tcp/127.0.0.1:7447``; workers are Zenoh clients connecting to it.
+
+Going multi-machine means a *role config* per process (``--bus-config FILE``, written by ``studio bus
+credentials``, see :mod:`studio.backend.credentials`): Zenoh's TLS with client certificates, a user and password
+per role, and on the hub the access rules of every role. A process listening beyond loopback without them is
+refused (:meth:`BusConfig.listen_problem`) unless ``--insecure-listen-without-auth`` says otherwise, loudly; see
+``docs/deployment.md``.
 
 Every payload goes through :mod:`studio.backend.messages`; the helpers here decode and validate what
 arrives, answer malformed requests with an :class:`~studio.backend.messages.ErrorReply` and log and drop
@@ -17,6 +21,7 @@ import argparse
 import errno
 import json
 import logging
+import os
 import socket
 import threading
 import time
@@ -34,6 +39,18 @@ DEFAULT_PORT = 7447
 DEFAULT_HUB_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
 Mode = Literal["peer", "client", "router"]
 MODES: tuple[Mode, ...] = ("peer", "client", "router")
+#: Link protocols that encrypt and can authenticate the other side by certificate.
+TLS_PROTOCOLS = ("tls", "quic")
+INSECURE_FLAG = "--insecure-listen-without-auth"
+#: Entries of a role config naming files; relative paths are taken from the config file's directory.
+CONFIG_FILE_ENTRIES = (
+    "transport/link/tls/root_ca_certificate",
+    "transport/link/tls/listen_certificate",
+    "transport/link/tls/listen_private_key",
+    "transport/link/tls/connect_certificate",
+    "transport/link/tls/connect_private_key",
+    "transport/auth/usrpwd/dictionary_file",
+)
 
 #: Zenoh's link lease: a peer that stops answering (machine gone, cable pulled) is declared lost after
 #: this long, so its liveliness tokens vanish and its jobs are reported within the 5 s the studio promises.
@@ -98,6 +115,75 @@ def is_loopback_endpoint(endpoint: str) -> bool:
     return host in ("127.0.0.1", "localhost", "::1") or host.startswith("127.")
 
 
+def local_endpoint(endpoint: str) -> str:
+    """The endpoint a process of this machine connects to for a listen endpoint: a wildcard host (``0.0.0.0``,
+    ``[::]``) becomes ``127.0.0.1``, which the hub's certificate names too."""
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.split("#")[0].rpartition(":")
+    if host.strip("[]") in ("0.0.0.0", "::", ""):
+        return f"{proto}/127.0.0.1:{port}"
+    return endpoint
+
+
+def _json_entry(conf: zenoh.Config, key: str) -> Any:
+    try:
+        return json.loads(conf.get_json(key))
+    except (zenoh.ZError, ValueError):
+        return None
+
+
+@dataclass(frozen=True)
+class BusSecurity:
+    """What a role config file secures (read from the file; see :mod:`studio.backend.credentials`)."""
+
+    listen_certificate: bool  # a TLS listener has a certificate and key
+    client_certificates: bool  # enable_mtls: a listener requires, and a client presents, a certificate
+    connect_certificate: bool  # a client certificate and key to present
+    user: str  # the user name this process authenticates with ('' without)
+    password_dictionary: bool  # a listener checks users against a password file
+    access_control: bool  # access rules are enabled (deny by default)
+    protocols: tuple[str, ...]  # the only link protocols allowed (empty: any)
+
+    @property
+    def guards_listening(self) -> bool:
+        """TLS with client certificates, passwords and access rules on what it listens on."""
+        return (
+            self.listen_certificate
+            and self.client_certificates
+            and self.password_dictionary
+            and self.access_control
+        )
+
+    @classmethod
+    def of(cls, conf: zenoh.Config) -> BusSecurity:
+        tls = _json_entry(conf, "transport/link/tls") or {}
+        usrpwd = _json_entry(conf, "transport/auth/usrpwd") or {}
+        acl = _json_entry(conf, "access_control") or {}
+        return cls(
+            listen_certificate=bool(tls.get("listen_certificate") and tls.get("listen_private_key")),
+            client_certificates=bool(tls.get("enable_mtls")),
+            connect_certificate=bool(tls.get("connect_certificate") and tls.get("connect_private_key")),
+            user=str(usrpwd.get("user") or ""),
+            password_dictionary=bool(usrpwd.get("dictionary_file")),
+            access_control=bool(acl.get("enabled")) and acl.get("default_permission", "deny") == "deny",
+            protocols=tuple(_json_entry(conf, "transport/link/protocols") or ()),
+        )
+
+
+def _read_config_file(path: str) -> zenoh.Config:
+    """A role config file with its file entries made absolute (relative ones are from the file's directory)."""
+    try:
+        conf = zenoh.Config.from_file(path)
+    except (zenoh.ZError, OSError) as e:
+        raise ValueError(f"cannot read the bus config {path}: {one_line(e)}") from None
+    base = os.path.dirname(os.path.abspath(path))
+    for key in CONFIG_FILE_ENTRIES:
+        value = _json_entry(conf, key)
+        if isinstance(value, str) and value and not os.path.isabs(value):
+            conf.insert_json5(key, json.dumps(os.path.join(base, value)))
+    return conf
+
+
 @dataclass(frozen=True)
 class BusConfig:
     """How a process joins the bus.
@@ -109,6 +195,9 @@ class BusConfig:
         multicast_scouting: let Zenoh discover peers by UDP multicast (off: endpoints are explicit).
         lease_ms: link lease, see :data:`LEASE_MS`.
         connect_timeout_s: how long a client waits for its hub when opening before giving up.
+        config_file: a role config (``--bus-config``): TLS, user and password, access rules; its mode and
+            endpoints are the defaults of the ones above (see :meth:`from_file`).
+        insecure_listen: listen beyond loopback even without TLS and authentication (logged as a warning).
     """
 
     mode: Mode = "client"
@@ -117,6 +206,8 @@ class BusConfig:
     multicast_scouting: bool = False
     lease_ms: int = LEASE_MS
     connect_timeout_s: float = 10.0
+    config_file: str | None = None
+    insecure_listen: bool = False
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -129,6 +220,75 @@ class BusConfig:
             raise ValueError("a bus client does not listen; use --mode peer to accept connections")
         if self.mode == "router" and not self.listen:
             raise ValueError("a bus router needs a --listen endpoint")
+
+    @classmethod
+    def from_file(
+        cls,
+        path: str | os.PathLike,
+        *,
+        mode: Mode | None = None,
+        connect: Iterable[str] = (),
+        listen: Iterable[str] = (),
+        default_listen: Iterable[str] = (),
+        default_connect: Iterable[str] = (),
+    ) -> BusConfig:
+        """A role config file, with ``mode`` / ``connect`` / ``listen`` (when given) in place of the file's; the
+        defaults apply when neither names endpoints. Raises ValueError with one line for an unreadable file."""
+        path = os.path.abspath(os.fspath(path))
+        conf = _read_config_file(path)
+        file_mode = _json_entry(conf, "mode")
+
+        def endpoints(key: str) -> tuple[str, ...]:
+            value = _json_entry(conf, key) or ()
+            if isinstance(value, dict):  # Zenoh's per-mode form (its default when the file names none)
+                value = value.get(file_mode, ()) or ()
+            return tuple(value)
+
+        file_connect, file_listen = endpoints("connect/endpoints"), endpoints("listen/endpoints")
+        connect, listen = tuple(connect) or file_connect, tuple(listen) or file_listen
+        if not connect and not listen:
+            connect, listen = tuple(default_connect), tuple(default_listen)
+        chosen = mode or (file_mode if file_mode in MODES else None) or ("client" if not listen else "router")
+        return cls(mode=chosen, connect=connect, listen=listen, config_file=path)
+
+    def security(self) -> BusSecurity | None:
+        """What the role config secures (None without one)."""
+        if self.config_file is None:
+            return None
+        return BusSecurity.of(_read_config_file(self.config_file))
+
+    def listen_problem(self) -> str | None:
+        """Why listening as configured would open the bus to other machines unguarded (None: it does not).
+
+        Listening beyond loopback needs every such endpoint on TLS, with a certificate, client certificates
+        required, a password dictionary and access rules (deny by default), from a role config file."""
+        exposed = [e for e in self.listen if not is_loopback_endpoint(e)]
+        if not exposed:
+            return None
+        security = self.security()
+        plain = [e for e in exposed if e.partition("/")[0] not in TLS_PROTOCOLS]
+        if security is not None and security.guards_listening and not plain:
+            return None
+        if plain:
+            missing = f"{plain[0]} is not TLS"
+        elif security is None:
+            missing = "no --bus-config gives TLS, passwords and access rules"
+        else:
+            missing = f"{self.config_file} lacks " + ", ".join(
+                what
+                for what, present in (
+                    ("a listen certificate", security.listen_certificate),
+                    ("enable_mtls", security.client_certificates),
+                    ("a password dictionary", security.password_dictionary),
+                    ("access rules denying by default", security.access_control),
+                )
+                if not present
+            )
+        return (
+            f"refusing to listen on {', '.join(exposed)} beyond this machine unauthenticated ({missing}): "
+            f"make credentials with `studio bus credentials` and pass --bus-config <dir>/hub/bus.json5, "
+            f"or accept the risk with {INSECURE_FLAG}"
+        )
 
     @classmethod
     def hub(cls, listen: Iterable[str] = (DEFAULT_HUB_ENDPOINT,), connect: Iterable[str] = ()) -> BusConfig:
@@ -152,10 +312,12 @@ class BusConfig:
         return all(is_loopback_endpoint(e) for e in self.connect + self.listen)
 
     def zenoh_config(self) -> zenoh.Config:
+        """The Zenoh configuration: the role config file's (if any) with this object's mode, endpoints, scouting
+        and lease in place of the file's."""
         listen = list(self.listen)
         if self.mode == "peer" and not listen:
             listen = ["tcp/127.0.0.1:0"]  # Zenoh's own default would listen on every interface
-        conf: dict[str, Any] = {
+        entries: dict[str, Any] = {
             "mode": self.mode,
             "connect": {
                 "endpoints": list(self.connect),
@@ -164,10 +326,17 @@ class BusConfig:
                 "retry": {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2},
             },
             "listen": {"endpoints": listen},
-            "scouting": {"multicast": {"enabled": bool(self.multicast_scouting)}},
-            "transport": {"link": {"tx": {"lease": int(self.lease_ms), "keep_alive": 4}}},
+            "scouting/multicast/enabled": bool(self.multicast_scouting),
+            "transport/link/tx/lease": int(self.lease_ms),
+            "transport/link/tx/keep_alive": 4,
         }
-        return zenoh.Config.from_json5(json.dumps(conf))
+        if self.config_file is None:
+            conf = zenoh.Config.from_json5("{}")
+        else:
+            conf = _read_config_file(self.config_file)
+        for key, value in entries.items():
+            conf.insert_json5(key, json.dumps(value))
+        return conf
 
     def to_args(self) -> list[str]:
         """Command-line options that reproduce this configuration (for spawning a worker)."""
@@ -178,6 +347,10 @@ class BusConfig:
             args += ["--listen", e]
         if self.multicast_scouting:
             args.append("--multicast-scouting")
+        if self.config_file is not None:
+            args += ["--bus-config", self.config_file]
+        if self.insecure_listen:
+            args.append(INSECURE_FLAG)
         return args
 
 
@@ -208,10 +381,34 @@ def add_bus_arguments(parser: argparse.ArgumentParser, role: Literal["worker", "
     g.add_argument(
         "--multicast-scouting", action="store_true", help="discover peers by UDP multicast (off by default)"
     )
+    g.add_argument(
+        "--bus-config",
+        default=None,
+        metavar="FILE",
+        help="this role's Zenoh config from `studio bus credentials` (TLS, password, access rules; its "
+        "endpoints unless --connect / --listen are given)",
+    )
+    g.add_argument(
+        INSECURE_FLAG,
+        dest="insecure_listen",
+        action="store_true",
+        help="listen beyond this machine WITHOUT encryption or authentication: anyone who reaches the port can "
+        "submit jobs and read all traffic (refused otherwise)",
+    )
 
 
 def bus_config_from_args(args: argparse.Namespace, role: Literal["worker", "hub"]) -> BusConfig:
-    if role == "worker":
+    """The configuration the bus options ask for; ValueError with one line if they make no sense."""
+    if args.bus_config:
+        cfg = BusConfig.from_file(
+            args.bus_config,
+            mode=args.mode,
+            connect=args.connect,
+            listen=args.listen,
+            default_listen=(DEFAULT_HUB_ENDPOINT,) if role == "hub" else (),
+            default_connect=(DEFAULT_HUB_ENDPOINT,) if role == "worker" else (),
+        )
+    elif role == "worker":
         cfg = BusConfig.worker(connect=args.connect, listen=args.listen, mode=args.mode)
     else:
         cfg = BusConfig(
@@ -221,15 +418,35 @@ def bus_config_from_args(args: argparse.Namespace, role: Literal["worker", "hub"
         )
     if args.multicast_scouting:
         cfg = replace(cfg, multicast_scouting=True)
+    if args.insecure_listen:
+        cfg = replace(cfg, insecure_listen=True)
     return cfg
 
 
 def open_session(config: BusConfig) -> zenoh.Session:
-    """Open a Zenoh session; raises :class:`BusError` with the endpoints in the message on failure."""
+    """Open a Zenoh session; raises :class:`BusError` with the endpoints in the message on failure, and with
+    :meth:`BusConfig.listen_problem` for an unguarded listener beyond loopback (unless ``insecure_listen``)."""
+    try:
+        problem = config.listen_problem()
+    except ValueError as e:
+        raise BusError(str(e)) from None
+    if problem is not None and not config.insecure_listen:
+        raise BusError(problem)
+    if problem is not None:
+        log.warning(
+            "INSECURE: listening on %s without encryption or authentication (%s): anyone who can reach it can "
+            "submit jobs, drive teleop sessions and read all traffic",
+            ", ".join(e for e in config.listen if not is_loopback_endpoint(e)),
+            INSECURE_FLAG,
+        )
     if not config.is_loopback_only:
         log.info("bus endpoints leave this machine: connect=%s listen=%s", config.connect, config.listen)
     try:
-        return zenoh.open(config.zenoh_config())
+        conf = config.zenoh_config()
+    except ValueError as e:
+        raise BusError(str(e)) from None
+    try:
+        return zenoh.open(conf)
     except zenoh.ZError as e:
         where = ", ".join(config.connect + config.listen) or "(no endpoint)"
         hint = " — is the hub (`studio serve` / `studio hub`) running?" if config.mode == "client" else ""

@@ -54,8 +54,10 @@ class EmbeddedWorkers:
         log_dir: str | Path,
         extra_args: list[str] | tuple[str, ...] = (),
         env: dict[str, str] | None = None,
+        kind_args: dict[str, list[str]] | None = None,
     ):
         self.endpoint = endpoint
+        self.kind_args = dict(kind_args or {})  # kind -> its own extra options (its bus credentials)
         self.log_dir = Path(log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.processes: list[WorkerProcess] = []
@@ -113,6 +115,7 @@ class EmbeddedWorkers:
             worker,
             "--exit-with-parent",
             *extra,
+            *self.kind_args.get(kind, ()),
         ]
         if data_dir is not None:
             cmd += ["--data-dir", str(data_dir)]
@@ -170,6 +173,7 @@ def start_embedded_workers(hub: Any, *, sim: int = 1, train: int = 1, **kwargs: 
     """Start the embedded default next to ``hub`` (a :class:`studio.backend.hub.Hub`)."""
     return EmbeddedWorkers(
         hub.endpoint,
+        kind_args={kind: hub.embedded_worker_args(kind) for kind, n in (("sim", sim), ("train", train)) if n},
         data_dir=hub.data_dir,
         sim=sim,
         train=train,

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from studio.backend import bus
+from studio.backend.credentials import EMBEDDED_DIR
 from studio.backend.episode_transfer import EpisodeSink
 from studio.backend.jobs import JobClient, JobQueue
 from studio.backend.presence import Directory
@@ -76,10 +77,25 @@ class Hub:
 
     @property
     def endpoint(self) -> str:
-        """The endpoint local workers connect to (the first listen endpoint)."""
+        """The endpoint local workers connect to (the first listen endpoint, on loopback if it is a wildcard)."""
         if not self.config.listen:
             raise bus.BusError("this hub does not listen; workers must be reachable through --connect")
-        return self.config.listen[0]
+        return bus.local_endpoint(self.config.listen[0])
+
+    def embedded_worker_args(self, kind: str) -> list[str]:
+        """The bus options of a worker of ``kind`` this hub starts itself: none on a plain bus; on a bus with
+        credentials, the role config ``studio bus credentials`` put beside the hub's (``embedded/<kind>.json5``)."""
+        security = self.config.security()
+        if security is None or not (security.listen_certificate or security.user):
+            return []
+        assert self.config.config_file is not None
+        path = Path(self.config.config_file).parent / EMBEDDED_DIR / f"{kind}.json5"
+        if not path.is_file():
+            raise bus.BusError(
+                f"the hub's bus config has credentials but {path} is missing, so its own {kind} worker could not "
+                "join: use the hub directory `studio bus credentials` wrote, or start with --workers none"
+            )
+        return ["--bus-config", str(path)]
 
     def close(self) -> None:
         self.sink.close()
