@@ -367,14 +367,14 @@ def add_bus_arguments(parser: argparse.ArgumentParser, role: Literal["worker", "
         action="append",
         default=[],
         metavar="ENDPOINT",
-        help="endpoint to connect to, e.g. tcp/10.0.0.5:7447 (repeatable)",
+        help="endpoint to connect to, e.g. tls/10.0.0.5:7447 (repeatable)",
     )
     g.add_argument(
         "--listen",
         action="append",
         default=[],
         metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 to accept other machines (repeatable)",
+        help="endpoint to listen on (repeatable); beyond loopback only tls/, with --bus-config, e.g. tls/0.0.0.0:7447",
     )
     mode_default = "client, or peer with --listen" if role == "worker" else "router"
     g.add_argument("--mode", choices=MODES, default=None, help=f"Zenoh mode (default: {mode_default})")

@@ -4,7 +4,8 @@
 
 Everything stays on this machine by default: the web server binds to 127.0.0.1 and the bus router listens
 on ``tcp/127.0.0.1:7447``. Serving other machines is an explicit choice (``--host 0.0.0.0``; workers on
-other machines need ``--listen tcp/0.0.0.0:7447``, see docs/deployment.md). ``--workers none`` starts no
+other machines need the bus credentials of ``studio bus credentials``: ``--bus-config hub/bus.json5``, see
+docs/deployment.md). ``--workers none`` starts no
 worker, so that external ones (``studio worker sim|train``) do the work.
 """
 

@@ -18,6 +18,7 @@ import zenoh
 
 from studio.backend import bus, credentials, keys
 from studio.backend import messages as msg
+from studio.backend.embedded import start_embedded_workers
 from studio.backend.hub import Hub
 from studio.backend.jobs import JobClient
 from studio.backend.presence import Directory
@@ -187,3 +188,16 @@ def test_a_trainer_with_its_role_config_runs_a_job_over_tls(hub, bundle, tls_end
         assert isinstance(result, msg.JobResult) and result.result["counted"] == 3
     finally:
         workers.close()
+
+
+@pytest.mark.slow
+def test_the_hubs_own_trainer_joins_with_the_credentials_beside_the_hubs(hub, bundle):
+    """`studio serve --bus-config hub/bus.json5` starts its trainer with ``hub/embedded/train.json5``."""
+    expected = bundle.configs["hub"].parent / credentials.EMBEDDED_DIR / "train.json5"
+    assert hub.embedded_worker_args("train") == ["--bus-config", str(expected)]
+    assert hub.endpoint.startswith("tls/127.0.0.1:")
+    with start_embedded_workers(hub, sim=0, train=1) as embedded:
+        logs = [p.log_path for p in embedded.processes]
+        assert embedded.wait_ready(hub.directory, timeout=90), "".join(
+            p.read_text() for p in logs if p.exists()
+        )
