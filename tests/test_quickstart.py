@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from studio.cli import main
-from studio.model.train import load_checkpoint
+from studio.model.checkpoint import load_checkpoint
 from studio.quickstart import add_arguments, schedule, stage_models
 
 pytestmark = pytest.mark.timeout(900)

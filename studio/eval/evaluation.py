@@ -365,7 +365,7 @@ def register_checkpoint(data_dir, checkpoint: str | os.PathLike) -> str:
     """
     from studio.data.catalog import Catalog, CheckpointRecord, RunRecord
     from studio.data.paths import CATALOG_NAME, SHIPPED_POLICY_DIR, SHIPPED_RUN_ID, SHIPPED_RUN_NAME
-    from studio.model.train import load_checkpoint
+    from studio.model.checkpoint import load_checkpoint
 
     path = Path(checkpoint).resolve()
     if not path.is_file():

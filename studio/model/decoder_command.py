@@ -34,9 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from studio.model.checkpoint import load_checkpoint
     from studio.model.checkpoint_info import scene_of_tasks
     from studio.model.config import RunConfig
-    from studio.model.train import load_checkpoint
     from studio.model.train_command import open_splits
     from studio.model.train_decoder import train_decoder
 

@@ -126,7 +126,7 @@ class Planner:
     def load(
         cls, checkpoint: str | Path, device: str | torch.device = "cpu", precision: str = "fp32"
     ) -> Planner:
-        from studio.model.train import load_checkpoint, model_from_checkpoint
+        from studio.model.checkpoint import load_checkpoint, model_from_checkpoint
 
         ckpt = load_checkpoint(checkpoint, "cpu")
         planner = cls(model_from_checkpoint(ckpt), device, precision)

@@ -42,7 +42,7 @@ def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Pat
                   guidance_gate: float | None = None) -> dict[str, int]:  # fmt: skip
     """Write the policy (and decoder) files; returns their sizes in bytes. ``guidance`` and ``guidance_gate``
     set the policy's demonstration guidance and its gate (``ModelConfig``; None keeps the checkpoint's)."""
-    from studio.model.train import load_checkpoint
+    from studio.model.checkpoint import load_checkpoint
     from studio.model.train_decoder import DECODER_FORMAT
 
     out = Path(out)

@@ -46,6 +46,7 @@ import torch.distributed as dist
 
 from studio.model.augment import augment_batch
 from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, expert_indices_of
+from studio.model.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
 from studio.model.config import ModelConfig, RunConfig, TrainConfig, steps_for
 from studio.model.demo_task import demo_task_loss, label_table
 from studio.model.guidance import drop_demonstrations
@@ -57,7 +58,6 @@ from studio.model.reversal import reverse_pairs
 from studio.model.run_files import read_torch_file, write_json
 from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, plan_batches
 
-CHECKPOINT_FORMAT = "osvi-wm-checkpoint/1"
 # TrainConfig fields that may change when a run is resumed: bookkeeping, which does not change what is computed,
 # and ``max_steps`` — another --steps lengthens or shortens the run, its learning-rate schedule recomputed for the
 # new length from the step reached.
@@ -108,21 +108,6 @@ def median_path_depth(source: PairSource, samples: int = 64) -> float:
     idx = np.unique(np.linspace(0, len(source) - 1, min(samples, len(source))).round().astype(int))
     depths = np.concatenate([np.asarray(source[int(i)]["path"])[:, 2] for i in idx])
     return float(np.median(depths))
-
-
-def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """Read a checkpoint written by ``train`` and check its format."""
-    ckpt = read_torch_file(path, map_location)
-    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path} is not an OSVI-WM checkpoint (format {CHECKPOINT_FORMAT})")
-    return ckpt
-
-
-def model_from_checkpoint(ckpt: dict[str, Any], device: str | torch.device = "cpu") -> OSVIWM:
-    run = RunConfig.from_dict(ckpt["config"])
-    model = OSVIWM(run.model)
-    model.load_state_dict(ckpt["model"])
-    return model.to(device)
 
 
 # ---------------------------------------------------------------------------------------------- one step

@@ -27,11 +27,11 @@ import torch
 from torch.nn import functional as F
 
 from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, validation_batches
+from studio.model.checkpoint import load_checkpoint, model_from_checkpoint
 from studio.model.config import DecoderConfig
 from studio.model.decoder import LatentDecoder
 from studio.model.osvi_wm import OSVIWM
 from studio.model.run_files import read_torch_file, write_json
-from studio.model.train import load_checkpoint, model_from_checkpoint
 from studio.model.training_loop import StepOutput, TrainingLoop, TrainResult, cosine_schedule, plan_batches
 
 DECODER_FORMAT = "osvi-wm-decoder/1"

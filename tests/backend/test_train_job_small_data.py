@@ -13,8 +13,8 @@ import pytest
 from studio.backend.jobs import JobClient
 from studio.backend.train_job import parse_spec
 from studio.data.store import EpisodeStore
+from studio.model.checkpoint import load_checkpoint
 from studio.model.config import FINE_TUNE_LR, FINE_TUNE_STEPS
-from studio.model.train import load_checkpoint
 
 from .conftest import wait_worker
 

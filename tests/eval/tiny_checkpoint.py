@@ -15,8 +15,8 @@ def write_tiny_checkpoint(path: str | Path, seed: int = 0, guidance: float = 1.0
     import torch
 
     from studio.bench.synthetic_task import tiny_run_config
+    from studio.model.checkpoint import CHECKPOINT_FORMAT
     from studio.model.osvi_wm import OSVIWM
-    from studio.model.train import CHECKPOINT_FORMAT
 
     path = Path(path)
     torch.manual_seed(seed)

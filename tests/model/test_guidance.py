@@ -9,12 +9,13 @@ import torch
 from synthetic_pairs import SyntheticPairs, tiny_run_config
 
 from studio.model.batching import collate_pairs
+from studio.model.checkpoint import load_checkpoint
 from studio.model.config import ModelConfig, TrainConfig
 from studio.model.guidance import demonstration_gain, drop_demonstrations, guide
 from studio.model.osvi_wm import OSVIWM
 from studio.model.planner import Planner
 from studio.model.policy_export import export_policy
-from studio.model.train import compute_losses, load_checkpoint, train
+from studio.model.train import compute_losses, train
 
 torch.set_num_threads(1)
 

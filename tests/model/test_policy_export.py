@@ -9,10 +9,11 @@ from synthetic_pairs import SyntheticPairs, tiny_run_config
 
 from studio.cli import main
 from studio.eval.latents import find_decoder
+from studio.model.checkpoint import load_checkpoint
 from studio.model.config import DecoderConfig
 from studio.model.planner import Planner
 from studio.model.policy_export import export_policy
-from studio.model.train import load_checkpoint, train
+from studio.model.train import train
 from studio.model.train_decoder import load_decoder, train_decoder
 
 torch.set_num_threads(1)

@@ -9,10 +9,11 @@ import pytest
 import torch
 from synthetic_pairs import SyntheticPairs, tiny_run_config
 
+from studio.model.checkpoint import load_checkpoint
 from studio.model.config import DecoderConfig
 from studio.model.osvi_wm import OSVIWM
 from studio.model.pretrain_encoder import ENCODER_FORMAT, SpatialAutoencoder, pretrain_encoder
-from studio.model.train import CheckpointMismatch, _load_init, load_checkpoint, train
+from studio.model.train import CheckpointMismatch, _load_init, train
 
 torch.set_num_threads(1)
 CFG = DecoderConfig(

@@ -12,6 +12,7 @@ import torch
 
 from studio.data.store import EpisodeStore
 from studio.model import train_command
+from studio.model.checkpoint import load_checkpoint
 from studio.model.config import (
     FINE_TUNE_BATCH,
     FINE_TUNE_LR,
@@ -22,7 +23,6 @@ from studio.model.config import (
     preset,
     steps_for,
 )
-from studio.model.train import load_checkpoint
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from data_fixtures import make_recording

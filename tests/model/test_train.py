@@ -17,7 +17,8 @@ import pytest
 import torch
 from synthetic_pairs import SyntheticPairs, tiny_run_config
 
-from studio.model.train import CheckpointMismatch, learning_rate_factor, load_checkpoint, train
+from studio.model.checkpoint import load_checkpoint
+from studio.model.train import CheckpointMismatch, learning_rate_factor, train
 
 torch.set_num_threads(1)
 HERE = Path(__file__).resolve().parent
@@ -362,7 +363,7 @@ def test_no_world_model_loss_during_its_warm_up(tmp_path):
 
 @pytest.mark.slow
 def test_the_demonstration_task_loss_trains_and_its_head_is_saved_with_the_checkpoint(tmp_path):
-    from studio.model.train import model_from_checkpoint
+    from studio.model.checkpoint import model_from_checkpoint
 
     run = tiny_run_config(max_steps=3, batch_size=4, val_every=3, val_batches=1, demo_task_weight=0.5)
     source = SyntheticPairs(n_tasks=3)
@@ -404,7 +405,7 @@ def test_a_checkpoint_without_the_task_head_resumes_and_inits_a_run_that_adds_on
 
 @pytest.mark.slow
 def test_parts_labels_give_the_head_one_group_per_part_and_replace_a_task_head_on_init(tmp_path):
-    from studio.model.train import model_from_checkpoint
+    from studio.model.checkpoint import model_from_checkpoint
 
     def push_pairs(split="train"):
         source = SyntheticPairs(n_tasks=3, split=split)

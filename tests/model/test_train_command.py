@@ -10,7 +10,7 @@ from synthetic_pairs import SyntheticPairs
 
 from studio.cli import COMMANDS
 from studio.model import train_command
-from studio.model.train import load_checkpoint
+from studio.model.checkpoint import load_checkpoint
 
 torch.set_num_threads(1)
 TINY = [

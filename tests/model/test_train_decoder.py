@@ -8,8 +8,9 @@ import pytest
 import torch
 from synthetic_pairs import SyntheticPairs, tiny_run_config
 
+from studio.model.checkpoint import load_checkpoint
 from studio.model.config import DecoderConfig
-from studio.model.train import load_checkpoint, train
+from studio.model.train import train
 from studio.model.train_decoder import load_decoder, train_decoder
 
 torch.set_num_threads(1)
