@@ -45,8 +45,9 @@ from studio.backend.jobs import JobClient
 
 #: The holder name of the hub's data directory.
 HUB_HOLDER = "hub"
-#: The hub's queryable for offers of a job's outputs.
+#: The hub's queryables for offers of a job's outputs and for descriptions of a job's inputs.
 OFFER_KEY = f"{keys.ROOT}/store/artifacts"
+INPUTS_KEY = f"{keys.ROOT}/store/inputs"
 ARTIFACTS_DIR = "artifacts"
 #: Largest file fetched by default (a checkpoint of the paper's model is far below it).
 MAX_BLOB_BYTES = 4 << 30
@@ -56,6 +57,8 @@ MAX_INPUT_FILES = 4096
 MAX_INPUT_EPISODES = 100_000
 #: Where offered outputs may land in the hub's data directory.
 OUTPUT_DIRS = ("runs", "plans", "rollouts")
+#: Where the files a job reads (checkpoints, run directories, split files) may be, besides stored episodes.
+INPUT_DIRS = ("runs",)
 #: Offers the hub works on at once (beyond: ``busy``).
 MAX_OFFERS = 4
 _READ_BYTES = 1 << 20
@@ -436,13 +439,15 @@ class HubArtifacts:
         self.max_offers = max_offers
         self._working = 0
         self._lock = threading.Lock()
-        self._queryable = bus.declare_queryable(
-            session, OFFER_KEY, self._on_offer, (msg.BlobOffer, msg.EpisodeOffer)
-        )
+        self._queryables = [
+            bus.declare_queryable(session, OFFER_KEY, self._on_offer, (msg.BlobOffer, msg.EpisodeOffer)),
+            bus.declare_queryable(session, INPUTS_KEY, self._on_describe, msg.DescribeInputs),
+        ]
 
     def close(self) -> None:
-        with contextlib.suppress(zenoh.ZError):
-            self._queryable.undeclare()
+        for q in self._queryables:
+            with contextlib.suppress(zenoh.ZError):
+                q.undeclare()
         self.server.close()
 
     # ------------------------------------------------------------------ inputs
@@ -484,10 +489,21 @@ class HubArtifacts:
         return self.cache.keep_bytes(msgspec.json.encode(manifest))
 
     def _inside(self, value: str) -> Path | None:
+        """The path ``value`` names if it lies in one of :data:`INPUT_DIRS` of the data dir (else the worker resolves
+        it itself: ``"oracle"``, a shipped policy — or refuses it)."""
         if "\x00" in value:
             return None
         path = (self.data_dir / value).resolve()
-        return path if self.data_dir in path.parents else None
+        return path if any(self.data_dir / d in path.parents for d in INPUT_DIRS) else None
+
+    def _on_describe(self, request: msg.DescribeInputs, _query: zenoh.Query) -> msg.Message:
+        from studio.backend.job_runner import check_spec
+
+        check_spec(request.kind, request.spec)  # a ValueError is answered bad_request
+        try:
+            return msg.InputsDescribed(inputs=self.describe_inputs(request.kind, request.spec))
+        except (KeyError, TransferError) as e:
+            return msg.ErrorReply(code="not_found", message=bus.one_line(e))
 
     # ------------------------------------------------------------------ outputs
     def _on_offer(self, offer: msg.Message, query: zenoh.Query) -> Any:
@@ -579,18 +595,26 @@ def _episode_file_names() -> tuple[str, ...]:
 
 
 class ArtifactJobClient(JobClient):
-    """The hub's job client: every job it submits carries the content id of its inputs (``spec["inputs"]``), so that
-    a worker with its own data directory can fetch them."""
+    """A job client whose jobs carry the content id of their inputs (``spec["inputs"]``), so that a worker with its
+    own data directory can fetch them: described by ``artifacts`` in the hub's process, else asked of the hub."""
 
-    def __init__(self, session: zenoh.Session, artifacts: HubArtifacts, timeout: float = 5.0):
+    def __init__(self, session: zenoh.Session, artifacts: HubArtifacts | None = None, timeout: float = 5.0):
         super().__init__(session, timeout)
         self.artifacts = artifacts
+
+    def describe_inputs(self, kind: str, spec: dict[str, Any]) -> str | None:
+        if self.artifacts is not None:
+            return self.artifacts.describe_inputs(kind, spec)
+        request = msg.DescribeInputs(kind=kind, spec=spec)
+        return bus.request(
+            self.session, INPUTS_KEY, request, msg.InputsDescribed, timeout=self.timeout * 6
+        ).inputs
 
     def submit(self, kind: str, spec: dict[str, Any], **kwargs: Any) -> msg.JobStatus:
         if "inputs" not in spec:
             try:
-                inputs = self.artifacts.describe_inputs(kind, spec)
-            except (OSError, KeyError, TransferError) as e:
+                inputs = self.describe_inputs(kind, spec)
+            except (OSError, KeyError, TransferError, bus.BusError) as e:
                 bus.log.warning(
                     "%s job: its inputs cannot be described for remote workers: %s", kind, bus.one_line(e)
                 )
@@ -601,7 +625,7 @@ class ArtifactJobClient(JobClient):
 
 
 # ---------------------------------------------------------------------------------------------- worker side
-def _translate(value: Any, old: str, new: str) -> Any:
+def translate_paths(value: Any, old: str, new: str) -> Any:
     """``value`` with every string that is ``old`` or a path under it rewritten to lie under ``new``."""
     if isinstance(value, str):
         if value == old:
@@ -610,9 +634,9 @@ def _translate(value: Any, old: str, new: str) -> Any:
             return new.rstrip("/") + "/" + value[len(old.rstrip("/")) + 1 :]
         return value
     if isinstance(value, dict):
-        return {k: _translate(v, old, new) for k, v in value.items()}
+        return {k: translate_paths(v, old, new) for k, v in value.items()}
     if isinstance(value, list):
-        return [_translate(v, old, new) for v in value]
+        return [translate_paths(v, old, new) for v in value]
     return value
 
 
@@ -677,7 +701,7 @@ class WorkerArtifacts:
                 store.add_episode_files(work)
             finally:
                 shutil.rmtree(work, ignore_errors=True)
-        return _translate(spec, manifest.root, str(self.data_dir)), manifest.root
+        return translate_paths(spec, manifest.root, str(self.data_dir)), manifest.root
 
     def _fetch_to(self, ref: FileRef, dest: Path) -> None:
         self.fetcher.fetch(HUB_HOLDER, ref.blob, max_bytes=min(self.fetcher.max_bytes, ref.size))

@@ -11,7 +11,8 @@ with the counts as metrics. Cancelling stops between episodes: every episode is 
 stored stay stored, and the result (published for a cancelled job too) says how many were left. Because each slot's
 scene seed is derived from (seed, robot, role, task, index), running the same spec again — or re-queueing the job
 after its worker died — only makes the episodes still missing. Episodes go to the worker's ``--data-dir`` store, as
-for the ``expert`` and ``rollout`` jobs (the embedded workers share the hub's data directory).
+for the ``expert`` and ``rollout`` jobs (the embedded workers share the hub's data directory; a worker whose data
+directory is its own then adds each new episode to the hub's store, :mod:`studio.backend.artifact_transfer`).
 """
 
 from __future__ import annotations
@@ -170,7 +171,11 @@ def run_collect_job(ctx: JobContext) -> dict[str, Any]:
             made=s.made, already_present=s.already_present, failed_attempts=s.failed_attempts, missing=s.missing,
         )  # fmt: skip
 
+    before = {m.id for m in store.episodes()}
     result = collect(cfg, on_slot=on_slot, should_stop=lambda: ctx.cancelled)
+    for meta in store.episodes():  # to the hub's store, when the worker's data dir is its own
+        if meta.id not in before:
+            ctx.output_episode(meta.id)
     if result.errors and result.made == 0 and not result.stopped:
         raise RuntimeError(f"no episode could be made: {result.errors[0]}")
     return {

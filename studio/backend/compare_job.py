@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import msgspec
 
+from studio.backend.messages import ContentId
 from studio.backend.plan_job import checked_checkpoint
 
 if TYPE_CHECKING:
@@ -35,6 +36,8 @@ class CompareJobSpec(msgspec.Struct, forbid_unknown_fields=True):
         workers: rollout processes; robot: the agent (default: the scene's).
         label_a, label_b: names in the table; checkpoint_id_a, checkpoint_id_b: catalog ids the rollouts are
             stored under (default: the files registered as ``studio eval`` does).
+        inputs: content id of the job's inputs (:class:`~studio.backend.artifact_transfer.InputManifest`), which
+            a worker with its own data dir fetches before the job runs (set by the hub's job client).
     """
 
     a: PathText
@@ -50,6 +53,7 @@ class CompareJobSpec(msgspec.Struct, forbid_unknown_fields=True):
     label_b: Name | None = None
     checkpoint_id_a: Name | None = None
     checkpoint_id_b: Name | None = None
+    inputs: ContentId | None = None
 
 
 def parse_spec(spec: dict[str, Any]) -> CompareJobSpec:

@@ -55,5 +55,6 @@ def run_expert_job(ctx) -> dict[str, Any]:
     store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     ctx.progress(1, 2, message="storing the demonstration")
     meta = store.add_episode(recording, role="expert", source="scripted", extra={"job": ctx.job})
+    ctx.output_episode(meta.id)  # to the hub's store, when the worker's data dir is its own
     ctx.progress(2, 2, message="stored")
     return {"episode_id": meta.id, "task": meta.task, "frames": meta.num_frames, "steps": meta.num_steps}

@@ -2,9 +2,10 @@
 
 :class:`Hub` opens the router session workers connect to and hosts what exists once per studio: the
 worker :class:`~studio.backend.presence.Directory`, the :class:`~studio.backend.jobs.JobQueue` (with its
-journal under ``<data-dir>/jobs/``) and the :class:`~studio.backend.episode_transfer.EpisodeSink` that
-stores episodes shipped by remote workers. ``studio serve`` creates one and, by default, starts the
-embedded workers (:func:`studio.backend.embedded.start_embedded_workers`).
+journal under ``<data-dir>/jobs/``), the :class:`~studio.backend.episode_transfer.EpisodeSink` that
+stores episodes shipped by remote workers, and the :class:`~studio.backend.artifact_transfer.HubArtifacts` that
+serve job inputs to, and take job outputs from, workers with their own data dir. ``studio serve`` creates one and,
+by default, starts the embedded workers (:func:`studio.backend.embedded.start_embedded_workers`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from studio.backend import bus
+from studio.backend.artifact_transfer import ArtifactJobClient, HubArtifacts
 from studio.backend.credentials import EMBEDDED_DIR
 from studio.backend.episode_transfer import EpisodeSink
 from studio.backend.jobs import JobClient, JobQueue
@@ -73,7 +75,8 @@ class Hub:
         self.directory = Directory(self.session)
         self.jobs = JobQueue(self.session, self.directory, journal=journal or self.data_dir / JOURNAL_NAME)
         self.sink = EpisodeSink(self.session, self.store)
-        self.job_client = JobClient(self.session)
+        self.artifacts = HubArtifacts(self.session, self.data_dir, self.store)
+        self.job_client: JobClient = ArtifactJobClient(self.session, self.artifacts)
 
     @property
     def endpoint(self) -> str:
@@ -98,6 +101,7 @@ class Hub:
         return ["--bus-config", str(path)]
 
     def close(self) -> None:
+        self.artifacts.close()
         self.sink.close()
         self.jobs.close()
         self.directory.close()

@@ -23,13 +23,16 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import zenoh
 
 from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.presence import WorkerPresence
+
+if TYPE_CHECKING:
+    from studio.backend.artifact_transfer import WorkerArtifacts
 
 
 @dataclass(frozen=True)
@@ -185,6 +188,8 @@ class JobContext:
         worker: id of the worker running it.
         data_dir: the worker's dataset root, if it was given one.
         session: the worker's Zenoh session (for handlers that publish more than progress).
+        hub_data_dir: the hub's data dir the spec's paths were written for, when this worker's data dir is its
+            own (the spec then names this worker's copies, fetched before the handler runs); else None.
     """
 
     def __init__(self, runner: JobRunner, assign: msg.JobAssign):
@@ -196,6 +201,7 @@ class JobContext:
         self.worker = runner.presence.worker
         self.data_dir: Path | None = runner.data_dir
         self.session: zenoh.Session = runner.session
+        self.hub_data_dir: str | None = None
         self._cancel = threading.Event()
         self.cancel_reason = ""
         self._started = time.monotonic()
@@ -252,11 +258,36 @@ class JobContext:
             self._runner.presence.update(activity=f"{self.kind} job {self.job}: step {step}/{total}")
 
     def artifact(self, name: str, path: str | Path, step: int | None = None) -> None:
-        """Announce a file the job has finished writing (a checkpoint, a stored rollout, ...)."""
+        """Announce a file the job has finished writing (a checkpoint, a stored rollout, ...); a worker whose data
+        dir is its own first hands it to the hub (:meth:`output`) and announces it at its place there."""
+        self.output(path)
         self._runner.publish(
             keys.job_key(self.job, "artifacts"),
-            msg.JobArtifact(job=self.job, attempt=self.attempt, name=name, path=str(path), step=step),
+            msg.JobArtifact(
+                job=self.job, attempt=self.attempt, name=name, path=self.hub_path(path), step=step
+            ),
         )
+
+    def output(self, path: str | Path) -> None:
+        """A file (or every file of a directory) the job wrote in the data dir for the studio to read: on a worker
+        whose data dir is its own it is sent to the hub, which keeps it at the same place in its data dir (raises
+        :class:`~studio.backend.artifact_transfer.TransferError` if the hub does not take it); else nothing to do."""
+        if self._runner.artifacts is not None:
+            self._runner.artifacts.offer(path)
+
+    def output_episode(self, episode_id: str, rollout: Any = None) -> None:
+        """An episode the job stored (with ``rollout``, the row of the rollout it records): on a worker whose data
+        dir is its own it is added to the hub's store as it is; else nothing to do."""
+        if self._runner.artifacts is not None:
+            self._runner.artifacts.offer_episode(episode_id, rollout)
+
+    def hub_path(self, path: str | Path) -> str:
+        """``path`` of this worker's data dir as the same place in the hub's (unchanged when they are one)."""
+        from studio.backend.artifact_transfer import translate_paths
+
+        if self.hub_data_dir is None or self.data_dir is None:
+            return str(path)
+        return str(translate_paths(str(path), str(Path(self.data_dir).resolve()), self.hub_data_dir))
 
     def poses(self, frame: msg.PoseFrame) -> None:
         """Stream the poses of a running simulation (latest wins) for live display."""
@@ -285,12 +316,14 @@ class JobRunner:
         handlers: dict[str, Handler],
         *,
         data_dir: Path | None = None,
+        artifacts: WorkerArtifacts | None = None,
         keep_finished: int = 64,
     ):
         self.session = session
         self.presence = presence
         self.handlers = dict(handlers)
         self.data_dir = data_dir
+        self.artifacts = artifacts
         self._lock = threading.Lock()
         self._current: _Running | None = None
         self._finished: deque[tuple[msg.JobStatus, msg.JobResult | None]] = deque(maxlen=keep_finished)
@@ -384,9 +417,16 @@ class JobRunner:
         result: dict[str, Any] | None = None
         state: msg.JobState
         try:
+            if self.artifacts is not None:
+                ctx.progress(0, message="fetching the job's inputs from the hub")
+                ctx.spec, ctx.hub_data_dir = self.artifacts.prepare(ctx.spec)
             result = handler(ctx)
             if result is not None and not isinstance(result, dict):
                 raise TypeError(f"handler returned {type(result).__name__}, expected a dict or None")
+            if result is not None and ctx.hub_data_dir is not None and ctx.data_dir is not None:
+                from studio.backend.artifact_transfer import translate_paths
+
+                result = translate_paths(result, str(Path(ctx.data_dir).resolve()), ctx.hub_data_dir)
             state, reason = ("cancelled", ctx.cancel_reason) if ctx.cancelled else ("succeeded", "")
         except JobCancelled as e:
             state, reason = "cancelled", str(e)

@@ -669,6 +669,20 @@ class EpisodeOffer(Message, frozen=True):
     rollout: dict[str, Any] | None = None
 
 
+class DescribeInputs(Message, frozen=True):
+    """To the store host: the content id of what a ``kind`` job with ``spec`` reads, served from now on (see
+    :class:`studio.backend.artifact_transfer.InputManifest`)."""
+
+    kind: Id
+    spec: dict[str, Any]
+
+
+class InputsDescribed(Message, frozen=True):
+    """Answer to :class:`DescribeInputs`; ``inputs`` is None for a job that reads nothing of the data directory."""
+
+    inputs: ContentId | None
+
+
 class BlobStored(Message, frozen=True):
     """Answer to :class:`BlobOffer` and :class:`EpisodeOffer`: the content is in the store host's data directory."""
 

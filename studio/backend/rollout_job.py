@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 import numpy as np
 
+from studio.backend.messages import ContentId
 from studio.backend.plan_job import Name, PathText, SceneSeed, checked_checkpoint
 
 
@@ -29,6 +30,8 @@ class RolloutJobSpec(msgspec.Struct, forbid_unknown_fields=True):
             ``<run-dir>/<name>``, see :func:`studio.eval.evaluation.register_checkpoint`).
         speed: simulated seconds per wall-clock second (1 = real time, so viewers see it live; 0 = as fast as
             possible).
+        inputs: content id of the job's inputs (:class:`~studio.backend.artifact_transfer.InputManifest`), which
+            a worker with its own data dir fetches before the job runs (set by the hub's job client).
     """
 
     checkpoint: PathText
@@ -39,6 +42,7 @@ class RolloutJobSpec(msgspec.Struct, forbid_unknown_fields=True):
     robot: Literal["panda", "sawyer"] | None = None
     checkpoint_id: Name | None = None
     speed: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 1.0
+    inputs: ContentId | None = None
 
 
 def parse_spec(spec: dict[str, Any]) -> RolloutJobSpec:
@@ -167,7 +171,7 @@ def run_rollout_job(ctx) -> dict:
         checkpoint_id = spec.checkpoint_id
         if checkpoint != "oracle" and not checkpoint_id:
             checkpoint_id = register_checkpoint(store.root, checkpoint)
-        extra: dict[str, Any] = {"job": ctx.job, "checkpoint": checkpoint}
+        extra: dict[str, Any] = {"job": ctx.job, "checkpoint": ctx.hub_path(checkpoint)}
         if demo_score is not None:
             extra["demo_score"] = demo_score
         record = store_rollout(
@@ -177,6 +181,8 @@ def run_rollout_job(ctx) -> dict:
             checkpoint_id=None if checkpoint == "oracle" else str(checkpoint_id),
             extra=extra,
         )
+        if record.episode_id is not None:  # to the hub's store, when it is not this worker's
+            ctx.output_episode(record.episode_id, record)
         return {
             "rollout_id": record.id,
             "success": out.success,

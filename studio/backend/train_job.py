@@ -20,6 +20,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 
 from studio.backend.job_runner import JobContext
+from studio.backend.messages import ContentId
 from studio.backend.spec_paths import checkpoint_path, inside_data_dir
 
 _Path = Annotated[str, msgspec.Meta(min_length=1, max_length=4096)]
@@ -41,6 +42,8 @@ class TrainJobSpec(msgspec.Struct, forbid_unknown_fields=True):
         threads: torch CPU threads (None: torch's default).
         init: a checkpoint or policy file whose weights the run starts from (``studio train --init``).
         fine_tune: continue ``init`` with the fine-tuning schedule (``studio train --fine-tune``).
+        inputs: content id of the job's inputs (:class:`~studio.backend.artifact_transfer.InputManifest`), which
+            a worker with its own data dir fetches before the job runs (set by the hub's job client).
     """
 
     data_dir: _Path
@@ -54,6 +57,7 @@ class TrainJobSpec(msgspec.Struct, forbid_unknown_fields=True):
     threads: Annotated[int, msgspec.Meta(ge=1, le=1024)] | None = None
     init: _Path | None = None
     fine_tune: bool = False
+    inputs: ContentId | None = None
 
     def __post_init__(self) -> None:
         if self.fine_tune and self.init is None:
@@ -102,6 +106,8 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
             if stamp is not None and stamp != seen[name]:
                 seen[name] = stamp
                 ctx.artifact(f"checkpoint:{name}", path, step=step_of[name])
+                if (out / "metrics.jsonl").is_file():  # the curves so far, for a hub not sharing this disk
+                    ctx.output(out / "metrics.jsonl")
 
     def on_progress(info: dict[str, Any]) -> None:
         nonlocal previous_step
@@ -120,6 +126,7 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
         cancel=lambda: ctx.cancelled, show_progress=False, resume=True, init=init,
     )  # fmt: skip
     announce_new_checkpoints({"best.pt": result.step, "last.pt": result.step})
+    ctx.output(out)  # the whole run directory, for a hub that does not share this disk
     return {
         "status": result.status,
         "step": result.step,

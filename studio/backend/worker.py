@@ -7,6 +7,11 @@ Both run the job handlers of :data:`studio.backend.job_runner.JOB_KINDS` for the
 with ``--handler KIND=module:function``. SIGTERM / SIGINT stop the worker cleanly: teleop recordings
 being stored are finished, a running job is asked to stop (a training job is then re-queued by the hub
 and resumes from its checkpoint elsewhere).
+
+A worker on another machine than the hub, without a shared disk, is started with ``--data-dir DIR --own-data-dir``:
+each job's inputs are fetched from the hub into ``DIR`` by content id (and cached there), its outputs are handed
+to the hub's data dir, and recorded episodes are shipped to the hub's store
+(:mod:`studio.backend.artifact_transfer`, :mod:`studio.backend.episode_transfer`).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from pathlib import Path
 import platformdirs
 
 from studio.backend import bus, keys
+from studio.backend.artifact_transfer import WorkerArtifacts
 from studio.backend.episode_transfer import EpisodeDestination, EpisodeShipper
 from studio.backend.job_runner import JobRunner, resolve_handlers
 from studio.backend.presence import WorkerPresence, new_worker_id
@@ -47,6 +53,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="dataset root to store recorded episodes in directly (same machine as the hub or a shared "
         "filesystem); without it, episodes are shipped to the hub's store over the bus",
+    )
+    parser.add_argument(
+        "--own-data-dir",
+        action="store_true",
+        help="--data-dir is this worker's own, not the hub's: fetch each job's inputs from the hub into it (cached by "
+        "content id), hand job outputs to the hub's data dir and ship recorded episodes to the hub's store",
     )
     parser.add_argument(
         "--spool-dir",
@@ -88,6 +100,10 @@ def run(args: argparse.Namespace) -> int:
         handlers, unavailable = resolve_handlers(args.kind, args.handler, defaults=not args.only_handlers)
         if not 1.0 <= args.control_hz <= 500.0:
             raise ValueError(f"--control-hz must be within 1..500, got {args.control_hz}")
+        if args.own_data_dir and not args.data_dir:
+            raise ValueError(
+                "--own-data-dir needs --data-dir (where fetched inputs and job outputs are kept)"
+            )
     except ValueError as e:
         print(f"studio worker: {e}", file=sys.stderr)
         return 2
@@ -105,7 +121,14 @@ def run(args: argparse.Namespace) -> int:
     presence = WorkerPresence(
         session, args.kind, worker_id, job_kinds=sorted(handlers), unavailable=unavailable, announce=False
     )
-    runner = JobRunner(session, presence, handlers, data_dir=Path(args.data_dir) if args.data_dir else None)
+    artifacts = WorkerArtifacts(session, args.data_dir, worker_id) if args.own_data_dir else None
+    runner = JobRunner(
+        session,
+        presence,
+        handlers,
+        data_dir=Path(args.data_dir) if args.data_dir else None,
+        artifacts=artifacts,
+    )
     sim_host = destination = None
     if args.kind == "sim":
         from studio.sim.rendering import preload_llvm_users
@@ -114,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
         from studio.backend.sim_worker import SimWorker
         from studio.backend.teleop import TeleopConfig
 
-        if args.data_dir:
+        if args.data_dir and not args.own_data_dir:
             destination = EpisodeDestination(data_dir=args.data_dir)
         else:
             destination = EpisodeDestination(shipper=EpisodeShipper(session, spool_dir))
@@ -148,5 +171,7 @@ def run(args: argparse.Namespace) -> int:
             presence.close()
             if destination is not None:
                 destination.close()
+            if artifacts is not None:
+                artifacts.close()
             session.close()
     return 0

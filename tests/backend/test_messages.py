@@ -167,6 +167,8 @@ EXAMPLES: list[msg.Message] = [
         rollout={"id": "r-1", "task": "pick_place/bar->blue", "success": True},
     ),
     msg.BlobStored(blob="a" * 64, path="episodes/e1"),
+    msg.DescribeInputs(kind="plan", spec={"checkpoint": "runs/r/best.pt", "seed": 1}),
+    msg.InputsDescribed(inputs=None),
     msg.OpenSession(
         scene="pick_place",
         robot="panda",
