@@ -30,6 +30,7 @@ import zenoh
 
 from studio.backend import bus, keys
 from studio.backend import messages as msg
+from studio.data.atomic_files import atomic_write
 from studio.sim.camera import CameraModel
 from studio.sim.recording import Recording
 
@@ -314,8 +315,8 @@ class EpisodeShipper:
         with self._active_lock:
             self._active.add(transfer)
         try:
-            write_durably(base.with_suffix(".payload"), payload)
-            write_durably(base.with_suffix(".commit"), msg.encode(commit))
+            atomic_write(base.with_suffix(".payload"), payload)
+            atomic_write(base.with_suffix(".commit"), msg.encode(commit))
             return self._send_spooled(base)
         finally:
             with self._active_lock:
@@ -380,22 +381,6 @@ class EpisodeShipper:
                     bus.log.info("delivered spooled episode %s as %s", commit_path.stem, episode)
                 except ShipError as e:
                     bus.log.debug("spooled episode %s still pending: %s", commit_path.stem, e)
-
-
-def write_durably(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that after a crash the file is either absent or complete: a temporary file
-    beside it, flushed to disk, renamed over ``path``, and the directory entry flushed too."""
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    dfd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(dfd)
-    finally:
-        os.close(dfd)
 
 
 class EpisodeDestination:

@@ -63,6 +63,7 @@ from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.job_runner import JOB_KINDS, check_spec
 from studio.backend.presence import Directory, WorkerEntry
+from studio.data.atomic_files import atomic_write
 
 JOURNAL_VERSION = 2
 #: Largest job spec the queue accepts, as JSON bytes (a spec names files and options, never data).
@@ -176,13 +177,8 @@ class _JournalFile:
     def compact(self, entries: list[_JournalEntry]) -> None:
         """Rewrite the file as a header and ``entries``, durably (temporary file, fsync, rename). Raises OSError."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_name(self.path.name + ".tmp")
-        with open(tmp, "wb") as f:
-            f.write(msgspec.json.encode(_HEADER) + b"\n")
-            f.write(b"".join(msgspec.json.encode(e) + b"\n" for e in entries))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, self.path)
+        lines = [msgspec.json.encode(_HEADER)] + [msgspec.json.encode(e) for e in entries]
+        atomic_write(self.path, b"".join(line + b"\n" for line in lines))
         self.lines = len(entries)
         self._unsynced = False
 

@@ -25,15 +25,14 @@ job's handler and the file it writes.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import msgspec
 import numpy as np
 
-from studio.backend.messages import ContentId
 from studio.backend.spec_paths import checkpoint_path
+from studio.data.atomic_files import atomic_write
 from studio.eval.latents import decode_latents, find_decoder
 
 PLANS_DIR = "plans"
@@ -46,16 +45,13 @@ SceneSeed = Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]
 
 class PlanJobSpec(msgspec.Struct, forbid_unknown_fields=True):
     """What a ``plan`` job plans: ``checkpoint`` (path or ``"oracle"``) imitating the stored demonstration
-    ``expert_episode_id`` on ``task`` with scene ``seed``, for ``robot`` (the Panda; the Sawyer in Meta-World);
-    ``inputs``: the content id of the files it reads, for a worker with its own data dir
-    (:mod:`studio.backend.artifact_transfer`)."""
+    ``expert_episode_id`` on ``task`` with scene ``seed``, for ``robot`` (the Panda; the Sawyer in Meta-World)."""
 
     checkpoint: PathText
     expert_episode_id: Name
     task: Name
     seed: SceneSeed
     robot: Literal["panda", "sawyer"] = "panda"
-    inputs: ContentId | None = None
 
 
 def parse_spec(spec: dict[str, Any]) -> PlanJobSpec:
@@ -85,12 +81,7 @@ def expert_indices(n_frames: int, n: int = 10) -> np.ndarray:
 
 def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        np.savez_compressed(f, allow_pickle=False, **arrays)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    atomic_write(path, lambda f: np.savez_compressed(f, allow_pickle=False, **arrays))
 
 
 def run_plan_job(ctx) -> dict[str, Any]:
@@ -165,8 +156,6 @@ def run_plan_job(ctx) -> dict[str, Any]:
     ctx.raise_if_cancelled()
     rel = Path(PLANS_DIR) / f"{ctx.job}.npz"
     _write_npz(Path(ctx.data_dir) / rel, arrays)
-    # To the hub's data dir, where the studio reads it, when it is not this worker's.
-    ctx.output(Path(ctx.data_dir) / rel)
     ctx.progress(3, 3, message="planned")
     return {
         "path": str(rel),

@@ -43,8 +43,9 @@ import zenoh
 
 from studio.backend import bus, keys
 from studio.backend import messages as msg
-from studio.backend.episode_transfer import EpisodeDestination, ShipError, recording_payload, write_durably
+from studio.backend.episode_transfer import EpisodeDestination, ShipError, recording_payload
 from studio.backend.scene_state import body_names, pose_frame, scene_geometry
+from studio.data.atomic_files import atomic_write
 from studio.sim.env import SimEnv, Simulator, make_env
 from studio.sim.recorder import Recorder, active_span
 from studio.sim.recording import Recording
@@ -781,7 +782,7 @@ class TeleopSession:
         try:
             self.spool_dir.mkdir(parents=True, exist_ok=True)
             path = self.spool_dir / f"unsaved-{self.id}-{int(time.time() * 1000)}.recording"
-            write_durably(path, msg.encode(recording_payload(recording)))
+            atomic_write(path, msg.encode(recording_payload(recording)))
             return str(path)
         except OSError as e:
             bus.log.error("could not even spool the recording: %s", e)

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.data.atomic_files import atomic_write
 from studio.data.forks import fork_source
 
 DRAFTS_DIR = "drafts"
@@ -65,15 +66,6 @@ class DraftInfo:
     updated: float
 
 
-def _write_atomic(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        write(f)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 class RecordingDrafts:
     """The drafts of one data directory."""
 
@@ -96,7 +88,7 @@ class RecordingDrafts:
             raise DraftError(f"draft {draft_id} exists already")
         d.mkdir(parents=True, exist_ok=True)
         body = json.dumps({"prefix": None, "forked_from": None, **header, "created": time.time()}, indent=1)
-        _write_atomic(d / HEADER, lambda f: f.write(body.encode()))
+        atomic_write(d / HEADER, body)
 
     def header(self, draft_id: str) -> dict:
         try:
@@ -150,7 +142,7 @@ class RecordingDrafts:
             return 0
         payload = {"states": states[skip:], **{f"a_{k}": np.asarray(v)[skip:] for k, v in arrays.items()}}
         path = self._dir(draft_id) / f"chunk-{expected:08d}-{len(states) - skip:06d}.npz"
-        _write_atomic(path, lambda f: np.savez(f, allow_pickle=False, **payload))
+        atomic_write(path, lambda f: np.savez(f, allow_pickle=False, **payload))
         return len(states) - skip
 
     def discard(self, draft_id: str) -> None:

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from studio.data import video
+from studio.data.atomic_files import fsync_path
 from studio.data.catalog import Catalog, RolloutRecord
 from studio.data.episode import (
     EPISODE_FILES,
@@ -49,14 +50,6 @@ from studio.sim.recording import Recording
 
 class StoreError(RuntimeError):
     """An episode could not be added, found or deleted."""
-
-
-def _fsync_path(path: Path, directory: bool = False) -> None:
-    fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _lock(path: Path, blocking: bool, create: bool = True) -> int | None:
@@ -257,15 +250,15 @@ class EpisodeStore:
             work.mkdir()
             try:
                 for path in write_files(work):
-                    _fsync_path(path)
-                _fsync_path(work, directory=True)
+                    fsync_path(path)
+                fsync_path(work, directory=True)
             except BaseException:
                 shutil.rmtree(work, ignore_errors=True)
                 raise
             self._stage("files_written")
             os.rename(work, final)
-            _fsync_path(self.episodes_dir, directory=True)
-            _fsync_path(self.tmp_dir, directory=True)
+            fsync_path(self.episodes_dir, directory=True)
+            fsync_path(self.tmp_dir, directory=True)
             self._stage("renamed")
             try:
                 with self.catalog.transaction():
@@ -342,7 +335,7 @@ class EpisodeStore:
             return
         trash = self.tmp_dir / f"deleted-{path.name}-{secrets.token_hex(3)}"
         os.rename(path, trash)
-        _fsync_path(path.parent, directory=True)
+        fsync_path(path.parent, directory=True)
         shutil.rmtree(trash, ignore_errors=True)
 
     # ------------------------------------------------------------------ start-up check

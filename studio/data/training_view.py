@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 
 from studio.data import video
+from studio.data.atomic_files import atomic_write
 from studio.data.episode import FRAMES_FILE, EpisodeMeta, read_arrays, read_meta
 from studio.data.splits import SPLITS, SplitSpec, load_split, validation_ids
 from studio.data.store import EpisodeStore
@@ -412,10 +413,7 @@ class PairDataset:
         decoded = video.read_video(self._episodes_dir / meta.id / FRAMES_FILE, size=(meta.height, meta.width))
         frames = resize_frames(decoded.frames, self.image_size)
         path = self._cache_file(meta)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as fh:
-            np.save(fh, frames)
-        os.replace(tmp, path)
+        atomic_write(path, lambda fh: np.save(fh, frames))
 
     def _build_cache(self) -> None:
         from tqdm import tqdm

@@ -46,6 +46,8 @@ from typing import Any
 
 import numpy as np
 
+from studio.data.atomic_files import atomic_write
+
 #: The calibration file beside a checkpoint ``<stem>.pt``.
 SUFFIX = ".demo-score.npz"
 #: Reference demonstrations per training task read from a store when calibrating (the first by id).
@@ -126,24 +128,19 @@ class Calibration:
         }
 
     def save(self, path: str | os.PathLike) -> None:
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.tmp")
-        with open(tmp, "wb") as f:
-            np.savez_compressed(
-                f,
-                allow_pickle=False,
-                format=np.int64(FORMAT),
-                mean=self.mean.astype(np.float32),
-                spread=self.spread.astype(np.float32),
-                reference=self.reference.astype(np.float16),
-                threshold=np.float64(self.threshold),
-                positives=self.positives.astype(np.float64),
-                negatives=self.negatives.astype(np.float64),
-                negative_kinds=np.asarray(self.negative_kinds, dtype=str),
-                source=np.asarray(self.source),
-                checkpoint_stamp=np.asarray(self.checkpoint_stamp),
-            )
-        os.replace(tmp, path)
+        arrays = dict(
+            format=np.int64(FORMAT),
+            mean=self.mean.astype(np.float32),
+            spread=self.spread.astype(np.float32),
+            reference=self.reference.astype(np.float16),
+            threshold=np.float64(self.threshold),
+            positives=self.positives.astype(np.float64),
+            negatives=self.negatives.astype(np.float64),
+            negative_kinds=np.asarray(self.negative_kinds, dtype=str),
+            source=np.asarray(self.source),
+            checkpoint_stamp=np.asarray(self.checkpoint_stamp),
+        )
+        atomic_write(path, lambda f: np.savez_compressed(f, allow_pickle=False, **arrays))
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Calibration:

@@ -1,6 +1,7 @@
 """Run-directory bookkeeping shared by the training loops: atomic files, JSONL metrics, seeds, cancellation.
 
-* ``atomic_save`` / ``write_json``: write to a temporary file and rename, so a kill never leaves a torn file.
+* ``atomic_save`` / ``write_json``: written through :func:`studio.data.atomic_files.atomic_write`, so a kill never
+  leaves a torn file.
 * ``read_torch_file``: read back any file ``torch.save`` wrote (checkpoints, decoders, policies) weights-only.
 * ``append_jsonl`` / ``trim_metrics``: one JSON object per line; on resume, records of steps the checkpoint does
   not contain (work of a killed run) and lines cut short by the kill are dropped.
@@ -11,18 +12,18 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from studio.data.atomic_files import atomic_write
+
 
 def atomic_save(obj: Any, path: Path) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    """``torch.save`` ``obj`` to ``path`` atomically."""
+    atomic_write(path, lambda f: torch.save(obj, f))
 
 
 def read_torch_file(path: str | Path, map_location: str | torch.device = "cpu") -> Any:
@@ -35,9 +36,7 @@ def read_torch_file(path: str | Path, map_location: str | torch.device = "cpu") 
 
 
 def write_json(path: Path, obj: Any) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True))
-    os.replace(tmp, path)
+    atomic_write(path, json.dumps(obj, indent=2, sort_keys=True))
 
 
 def append_jsonl(path: Path, record: dict[str, Any]) -> None:
@@ -60,9 +59,7 @@ def trim_metrics(path: Path, step: int) -> None:
             continue
         if rec.get("step", 0) <= step:
             kept.append(line)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text("".join(k + "\n" for k in kept))
-    os.replace(tmp, path)
+    atomic_write(path, "".join(k + "\n" for k in kept))
 
 
 def step_seed(seed: int, step: int, rank: int = 0) -> int:
