@@ -31,6 +31,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 import numpy as np
 
+from studio.backend.messages import ContentId
 from studio.backend.spec_paths import checkpoint_path
 from studio.data.atomic_files import atomic_write
 from studio.eval.latents import decode_latents, find_decoder
@@ -45,13 +46,16 @@ SceneSeed = Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]
 
 class PlanJobSpec(msgspec.Struct, forbid_unknown_fields=True):
     """What a ``plan`` job plans: ``checkpoint`` (path or ``"oracle"``) imitating the stored demonstration
-    ``expert_episode_id`` on ``task`` with scene ``seed``, for ``robot`` (the Panda; the Sawyer in Meta-World)."""
+    ``expert_episode_id`` on ``task`` with scene ``seed``, for ``robot`` (the Panda; the Sawyer in Meta-World);
+    ``inputs``: the content id of the files it reads, for a worker with its own data dir
+    (:mod:`studio.backend.artifact_transfer`)."""
 
     checkpoint: PathText
     expert_episode_id: Name
     task: Name
     seed: SceneSeed
     robot: Literal["panda", "sawyer"] = "panda"
+    inputs: ContentId | None = None
 
 
 def parse_spec(spec: dict[str, Any]) -> PlanJobSpec:
@@ -156,6 +160,8 @@ def run_plan_job(ctx) -> dict[str, Any]:
     ctx.raise_if_cancelled()
     rel = Path(PLANS_DIR) / f"{ctx.job}.npz"
     _write_npz(Path(ctx.data_dir) / rel, arrays)
+    # To the hub's data dir, where the studio reads it, when it is not this worker's.
+    ctx.output(Path(ctx.data_dir) / rel)
     ctx.progress(3, 3, message="planned")
     return {
         "path": str(rel),
