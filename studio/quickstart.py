@@ -65,22 +65,44 @@ VARIANT_STEPS: dict[str, tuple[int, int, int]] = {
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, help="run directory (default: DATA_DIR/runs/quickstart)")
     parser.add_argument("--episodes", type=int, default=40, help="episodes per task and robot to collect")
-    parser.add_argument("--steps", type=int, default=None,
-                        help="training steps of the cpu preset (default: the variant's, VARIANT_STEPS)")  # fmt: skip
-    parser.add_argument("--refine-steps", type=int, default=None,
-                        help="steps of the second schedule from the first stage's weights (0: skip; default: the variant's)")  # fmt: skip
-    parser.add_argument("--grow-steps", type=int, default=None,
-                        help="OSVI-WM: steps with the world model added to the weights of stages trained without "
-                             "it (0: train the full model from the start; default: the variant's)")  # fmt: skip
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="training steps of the cpu preset (default: the variant's, VARIANT_STEPS)",
+    )
+    parser.add_argument(
+        "--refine-steps",
+        type=int,
+        default=None,
+        help="steps of the second schedule from the first stage's weights (0: skip; default: the variant's)",
+    )
+    parser.add_argument(
+        "--grow-steps",
+        type=int,
+        default=None,
+        help="OSVI-WM: steps with the world model added to the weights of stages trained without "
+        "it (0: train the full model from the start; default: the variant's)",
+    )
     parser.add_argument("--decoder-steps", type=int, default=0, help="latent decoder steps (0: skip)")
     parser.add_argument("--eval-episodes", type=int, default=100, help="rollouts per held-out task")
     parser.add_argument("--replan", type=int, default=0, help="re-plans allowed per evaluation rollout")
     parser.add_argument("--seed", type=int, default=0, help="seed of collection, training and evaluation")
-    parser.add_argument("--variant", choices=VARIANTS, default="osvi-wm",
-                        help="model to train: the full OSVI-WM (default) or its no-world-model ablation")  # fmt: skip
+    parser.add_argument(
+        "--variant",
+        choices=VARIANTS,
+        default="osvi-wm",
+        help="model to train: the full OSVI-WM (default) or its no-world-model ablation",
+    )
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes")
-    parser.add_argument("--set", nargs="*", action="extend", default=[], metavar="SECTION.FIELD=VALUE",
-                        help="training config overrides, as for studio train")  # fmt: skip
+    parser.add_argument(
+        "--set",
+        nargs="*",
+        action="extend",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="training config overrides, as for studio train",
+    )
     add_data_dir_argument(parser)
 
 
@@ -138,9 +160,27 @@ def run(args: argparse.Namespace) -> int:
     def train(
         run_dir: Path, steps: int, seed: int, settings: tuple[str, ...], init: Path | None = None
     ) -> int:
-        return studio(["train", "--config", "cpu", "--data", str(root), "--out", str(run_dir), "--steps", str(steps),
-                       "--seed", str(seed), "--threads", str(args.workers), *(["--init", str(init)] if init else []),
-                       "--set", *settings, *args.set])  # fmt: skip
+        return studio(
+            [
+                "train",
+                "--config",
+                "cpu",
+                "--data",
+                str(root),
+                "--out",
+                str(run_dir),
+                "--steps",
+                str(steps),
+                "--seed",
+                str(seed),
+                "--threads",
+                str(args.workers),
+                *(["--init", str(init)] if init else []),
+                "--set",
+                *settings,
+                *args.set,
+            ]
+        )
 
     def best(last: Path) -> Path:
         # The checkpoint of lowest validation loss (validation = held-out episodes of the training tasks, so
@@ -151,26 +191,68 @@ def run(args: argparse.Namespace) -> int:
     checkpoint = out / "base" / "last.pt"
     _stage("train", times, lambda: train(out / "base", args.steps, args.seed, BASE_SETTINGS + early_model))
     if args.refine_steps > 0:
-        _stage("refine", times, lambda: train(out / "refine", args.refine_steps, args.seed + 1,
-                                              BASE_SETTINGS + REFINE_SETTINGS + early_model, init=checkpoint))  # fmt: skip
+        _stage(
+            "refine",
+            times,
+            lambda: train(
+                out / "refine",
+                args.refine_steps,
+                args.seed + 1,
+                BASE_SETTINGS + REFINE_SETTINGS + early_model,
+                init=checkpoint,
+            ),
+        )
         checkpoint = out / "refine" / "last.pt"
     if args.grow_steps > 0:
         grown_from = best(checkpoint)
-        _stage("grow", times, lambda: train(out / "grow", args.grow_steps, args.seed + 2,
-                                            BASE_SETTINGS + GROW_SETTINGS + grow_model, init=grown_from))  # fmt: skip
+        _stage(
+            "grow",
+            times,
+            lambda: train(
+                out / "grow",
+                args.grow_steps,
+                args.seed + 2,
+                BASE_SETTINGS + GROW_SETTINGS + grow_model,
+                init=grown_from,
+            ),
+        )
         checkpoint = out / "grow" / "last.pt"
     checkpoint = best(checkpoint)
     if args.decoder_steps > 0:
-        _stage("decoder", times, lambda: studio(["train-decoder", "--model", str(checkpoint), "--data", str(root),
-                                                 "--out", str(out / "decoder"), "--steps", str(args.decoder_steps)]))  # fmt: skip
+        _stage(
+            "decoder",
+            times,
+            lambda: studio(
+                [
+                    "train-decoder",
+                    "--model",
+                    str(checkpoint),
+                    "--data",
+                    str(root),
+                    "--out",
+                    str(out / "decoder"),
+                    "--steps",
+                    str(args.decoder_steps),
+                ]
+            ),
+        )
     report: dict = {}
 
     def evaluate() -> int:
         from studio.data.splits import resolve_tasks
         from studio.eval.evaluation import evaluate as run_eval
 
-        report.update(run_eval(str(checkpoint), resolve_tasks("pick_place", "held-out"), args.eval_episodes,
-                               args.seed, args.replan, args.workers, root))  # fmt: skip
+        report.update(
+            run_eval(
+                str(checkpoint),
+                resolve_tasks("pick_place", "held-out"),
+                args.eval_episodes,
+                args.seed,
+                args.replan,
+                args.workers,
+                root,
+            )
+        )
         return 0
 
     _stage("eval", times, evaluate)
@@ -193,6 +275,8 @@ def run(args: argparse.Namespace) -> int:
     for k, v in times.items():
         print(f"{k:10s} {v / 60:8.1f}")
     print(f"{'total':10s} {total / 60:8.1f}")
-    print(f"held-out success {report['success']:.1%} over {report['rollouts']} rollouts "
-          f"({', '.join(f'{t} {s:.0%}' for t, s in summary['tasks'].items())}); checkpoint {checkpoint}")  # fmt: skip
+    print(
+        f"held-out success {report['success']:.1%} over {report['rollouts']} rollouts "
+        f"({', '.join(f'{t} {s:.0%}' for t, s in summary['tasks'].items())}); checkpoint {checkpoint}"
+    )
     return 0

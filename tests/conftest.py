@@ -35,8 +35,16 @@ class _MissPlanner:
     """Plans empty air beside the pick-and-place objects: a rollout that fails at the reach stage."""
 
     def plan(self, expert_frames, agent_frame, K, T_world_cam):
-        wps = np.array([[0.3, 0.8, 0.1, 1], [0.3, 0.8, 0.15, 1], [0.3, 0.8, 0.15, 0], [0.3, 0.8, 0.15, 0],
-                        [0.3, 0.8, 0.2, 0]], dtype=float)  # fmt: skip
+        wps = np.array(
+            [
+                [0.3, 0.8, 0.1, 1],
+                [0.3, 0.8, 0.15, 1],
+                [0.3, 0.8, 0.15, 0],
+                [0.3, 0.8, 0.15, 0],
+                [0.3, 0.8, 0.2, 0],
+            ],
+            dtype=float,
+        )
         return type("Plan", (), {"waypoints_world": wps})()
 
 

@@ -17,9 +17,27 @@ pytestmark = pytest.mark.timeout(900)
 
 @pytest.mark.slow
 def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, capsys):
-    args = ["quickstart", "--data-dir", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--episodes", "2",
-            "--steps", "2", "--refine-steps", "1", "--grow-steps", "1", "--eval-episodes", "1", "--workers", "1",
-            "--set", "train.batch_size=4"]  # fmt: skip
+    args = [
+        "quickstart",
+        "--data-dir",
+        str(tmp_path / "data"),
+        "--out",
+        str(tmp_path / "run"),
+        "--episodes",
+        "2",
+        "--steps",
+        "2",
+        "--refine-steps",
+        "1",
+        "--grow-steps",
+        "1",
+        "--eval-episodes",
+        "1",
+        "--workers",
+        "1",
+        "--set",
+        "train.batch_size=4",
+    ]
     assert main(args) == 0
     summary = json.loads((tmp_path / "run" / "quickstart.json").read_text())
     assert set(summary["stage_wall_s"]) == {"collect", "train", "refine", "grow", "eval"}

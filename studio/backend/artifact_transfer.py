@@ -319,9 +319,12 @@ class BlobFetcher:
         for _ in range(_PIECE_TRIES):
             try:
                 part = bus.request(
-                    self.session, blob_key(holder, blob), msg.BlobGet(blob=blob, index=index), msg.BlobPart,
+                    self.session,
+                    blob_key(holder, blob),
+                    msg.BlobGet(blob=blob, index=index),
+                    msg.BlobPart,
                     timeout=self.timeout_s,
-                )  # fmt: skip
+                )
             except bus.BusError as e:
                 problem = bus.one_line(e)
                 if isinstance(e, bus.RemoteError):
@@ -402,8 +405,13 @@ def _path_values(kind: str, spec: dict[str, Any]) -> tuple[list[str], list[str],
 def _checkpoint_companions(path: Path) -> list[Path]:
     """Files read with a checkpoint: its latent decoder (:func:`studio.eval.latents.find_decoder`'s places) and
     its demonstration-score calibration."""
-    names = [path.parent / "decoder" / "best.pt", path.parent / "decoder" / "last.pt", path.parent / "decoder.pt",
-             path.with_name(f"{path.stem}.decoder.pt"), path.with_name(f"{path.stem}.demo-score.npz")]  # fmt: skip
+    names = [
+        path.parent / "decoder" / "best.pt",
+        path.parent / "decoder" / "last.pt",
+        path.parent / "decoder.pt",
+        path.with_name(f"{path.stem}.decoder.pt"),
+        path.with_name(f"{path.stem}.demo-score.npz"),
+    ]
     return [p for p in names if p.is_file()]
 
 
@@ -481,11 +489,15 @@ class HubArtifacts:
         for meta in metas[:MAX_INPUT_EPISODES]:
             folder = self.store.episode_dir(meta.id)
             parts = [self.cache.publish(folder / name) for name in _episode_file_names()]
-            episodes.append(EpisodeFiles(id=meta.id, files=[
-                FileRef(path=Path(p.path).name, blob=p.blob, size=p.size) for p in parts
-            ]))  # fmt: skip
-        manifest = InputManifest(root=str(self.data_dir), files=list(refs.values())[:MAX_INPUT_FILES],
-                                 episodes=episodes)  # fmt: skip
+            episodes.append(
+                EpisodeFiles(
+                    id=meta.id,
+                    files=[FileRef(path=Path(p.path).name, blob=p.blob, size=p.size) for p in parts],
+                )
+            )
+        manifest = InputManifest(
+            root=str(self.data_dir), files=list(refs.values())[:MAX_INPUT_FILES], episodes=episodes
+        )
         return self.cache.keep_bytes(msgspec.json.encode(manifest))
 
     def _inside(self, value: str) -> Path | None:
@@ -743,6 +755,11 @@ class WorkerArtifacts:
             row["episode_id"] = None
         folder = store.episode_dir(episode_id)
         refs = {name: self.cache.publish(folder / name) for name in _episode_file_names()}
-        offer = msg.EpisodeOffer(holder=self.holder, episode=episode_id, files={n: r.blob for n, r in refs.items()},
-                                 sizes={n: r.size for n, r in refs.items()}, rollout=row)  # fmt: skip
+        offer = msg.EpisodeOffer(
+            holder=self.holder,
+            episode=episode_id,
+            files={n: r.blob for n, r in refs.items()},
+            sizes={n: r.size for n, r in refs.items()},
+            rollout=row,
+        )
         return self._offer(offer, sum(r.size for r in refs.values())).path

@@ -152,24 +152,41 @@ def run_collect_job(ctx: JobContext) -> dict[str, Any]:
     from studio.data.store import EpisodeStore
     from studio.eval.planners import process_cached
 
-    cfg = CollectConfig(scene=spec.scene, robot=spec.robot, role=spec.role, tasks=list(spec.tasks),
-                        episodes=spec.episodes, seed=spec.seed, workers=1, data_dir=str(ctx.data_dir),
-                        progress=False)  # fmt: skip
+    cfg = CollectConfig(
+        scene=spec.scene,
+        robot=spec.robot,
+        role=spec.role,
+        tasks=list(spec.tasks),
+        episodes=spec.episodes,
+        seed=spec.seed,
+        workers=1,
+        data_dir=str(ctx.data_dir),
+        progress=False,
+    )
     store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     total = spec.total
     present = total - len(missing_slots(store, cfg, list(spec.tasks)))
     who = f"{spec.robot} {spec.role}"
-    ctx.progress(present, total, message=(
-        f"starting: {total - present} {who} episodes to make" + (f", {present} already stored" if present else "")
-    ))  # fmt: skip
+    ctx.progress(
+        present,
+        total,
+        message=(
+            f"starting: {total - present} {who} episodes to make"
+            + (f", {present} already stored" if present else "")
+        ),
+    )
 
     def on_slot(s: SlotDone) -> None:
         what = "stored" if s.stored else "failed every attempt"
         ctx.progress(
-            s.already_present + s.done, s.requested,
+            s.already_present + s.done,
+            s.requested,
             message=f"episode {s.already_present + s.done} of {s.requested}: {s.task} #{s.index} {what}",
-            made=s.made, already_present=s.already_present, failed_attempts=s.failed_attempts, missing=s.missing,
-        )  # fmt: skip
+            made=s.made,
+            already_present=s.already_present,
+            failed_attempts=s.failed_attempts,
+            missing=s.missing,
+        )
 
     before = {m.id for m in store.episodes()}
     result = collect(cfg, on_slot=on_slot, should_stop=lambda: ctx.cancelled)

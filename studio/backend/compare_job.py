@@ -91,8 +91,13 @@ def run_compare_job(ctx) -> dict:
     ctx.progress(0, total, message=f"starting: {total} episodes, each rolled out by A and by B")
 
     def on_episode(done: int, total: int, row: CompareRow) -> None:
-        ctx.progress(done, total, message=f"episode {done} of {total}: A {row.a.mark}, B {row.b.mark}",
-                     a_success=float(row.a.success), b_success=float(row.b.success))  # fmt: skip
+        ctx.progress(
+            done,
+            total,
+            message=f"episode {done} of {total}: A {row.a.mark}, B {row.b.mark}",
+            a_success=float(row.a.success),
+            b_success=float(row.b.success),
+        )
 
     try:
         result = compare(

@@ -133,12 +133,15 @@ class ForkStart(msgspec.Struct, frozen=True, array_like=True):
 
     def __post_init__(self) -> None:
         if self.states.dtype != "float64" or len(self.states.shape) != 2 or self.states.shape[0] < 1:
-            raise ValueError(f"ForkStart.states must be (T, S) float64 with T >= 1, got {self.states.dtype}"
-                             f"{list(self.states.shape)}")  # fmt: skip
+            raise ValueError(
+                f"ForkStart.states must be (T, S) float64 with T >= 1, got {self.states.dtype}"
+                f"{list(self.states.shape)}"
+            )
         for name, a in self.arrays.items():
             if not a.shape or a.shape[0] != self.states.shape[0]:
-                raise ValueError(f"ForkStart.arrays[{name!r}] has {a.shape[:1]} ticks, states have "
-                                 f"{self.states.shape[0]}")  # fmt: skip
+                raise ValueError(
+                    f"ForkStart.arrays[{name!r}] has {a.shape[:1]} ticks, states have {self.states.shape[0]}"
+                )
 
 
 class OpenSession(Message, frozen=True):
@@ -553,12 +556,15 @@ class DraftChunk(Message, frozen=True):
 
     def __post_init__(self) -> None:
         if self.states.dtype != "float64" or len(self.states.shape) != 2 or self.states.shape[0] < 1:
-            raise ValueError(f"DraftChunk.states must be (n, S) float64 with n >= 1, got {self.states.dtype}"
-                             f"{list(self.states.shape)}")  # fmt: skip
+            raise ValueError(
+                f"DraftChunk.states must be (n, S) float64 with n >= 1, got {self.states.dtype}"
+                f"{list(self.states.shape)}"
+            )
         for name, a in self.arrays.items():
             if not a.shape or a.shape[0] != self.states.shape[0]:
-                raise ValueError(f"DraftChunk.arrays[{name!r}] has {a.shape[:1]} ticks, states have "
-                                 f"{self.states.shape[0]}")  # fmt: skip
+                raise ValueError(
+                    f"DraftChunk.arrays[{name!r}] has {a.shape[:1]} ticks, states have {self.states.shape[0]}"
+                )
 
 
 class RecordingPayload(Message, frozen=True):

@@ -139,8 +139,12 @@ def run_plan_job(ctx) -> dict[str, Any]:
         arrays["null_waypoints_world"] = np.asarray(null, dtype=np.float64)
         cfg = planner.cfg
         gain = getattr(plan, "guidance_gain", None)
-        guidance = {"scale": float(cfg.guidance), "gate": float(cfg.guidance_gate),
-                    "gain": None if gain is None else float(gain), "guided": bool(getattr(plan, "guided", True))}  # fmt: skip
+        guidance = {
+            "scale": float(cfg.guidance),
+            "gate": float(cfg.guidance_gate),
+            "gain": None if gain is None else float(gain),
+            "guided": bool(getattr(plan, "guided", True)),
+        }
     decoded = 0
     pooled = getattr(plan, "pooled_states", None)
     if checkpoint != "oracle" and pooled is not None:

@@ -188,8 +188,10 @@ class TeleopSession:
         except ValueError as e:
             raise SessionError("bad_request", str(e)) from None
         except Exception as e:  # a scene file that no longer loads: say which and why
-            raise SessionError("bad_request", f"scene {request.scene!r} with the {request.robot} does not load: "
-                               f"{type(e).__name__}: {e}") from None  # fmt: skip
+            raise SessionError(
+                "bad_request",
+                f"scene {request.scene!r} with the {request.robot} does not load: {type(e).__name__}: {e}",
+            ) from None
         try:
             if fork is None:
                 self.env.reset(request.task, request.seed)
@@ -756,9 +758,11 @@ class TeleopSession:
                     draft=send.draft,
                     first_step=send.first_step,
                     states=msg.ArrayData.of(np.stack(send.states)),
-                    arrays={k: msg.ArrayData.of(np.stack([np.asarray(r[k], dtype=np.float64) for r in send.rows]))
-                            for k in fields},
-                )  # fmt: skip
+                    arrays={
+                        k: msg.ArrayData.of(np.stack([np.asarray(r[k], dtype=np.float64) for r in send.rows]))
+                        for k in fields
+                    },
+                )
                 self._draft_pub.put(msg.encode(chunk))
             except (zenoh.ZError, ValueError) as e:
                 bus.log.error("session %s: a draft chunk could not be sent: %s", self.id, e)
@@ -801,9 +805,16 @@ class TeleopSession:
             except (DraftError, OSError):
                 pass
         draft = f"unsaved-{int(time.time())}-{secrets.token_hex(3)}"
-        header = {"scene": recording.scene, "robot": recording.robot, "task": recording.task,
-                  "seed": int(recording.seed), "control_dt": float(recording.control_dt), "role": finish.role,
-                  "forked_from": extra.get("forked_from"), "session": self.id}  # fmt: skip
+        header = {
+            "scene": recording.scene,
+            "robot": recording.robot,
+            "task": recording.task,
+            "seed": int(recording.seed),
+            "control_dt": float(recording.control_dt),
+            "role": finish.role,
+            "forked_from": extra.get("forked_from"),
+            "session": self.id,
+        }
         drafts.create(draft, header)
         try:
             arrays = {

@@ -90,9 +90,15 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
         torch.set_num_threads(spec.threads)
     ctx.progress(0, message="preparing the training data")
     prepared = prepare_run(
-        str(data_dir), config=spec.config, scene=scene, overrides=list(spec.overrides), steps=spec.steps,
-        seed=spec.seed, init=init, fine_tune=spec.fine_tune,
-    )  # fmt: skip
+        str(data_dir),
+        config=spec.config,
+        scene=scene,
+        overrides=list(spec.overrides),
+        steps=spec.steps,
+        seed=spec.seed,
+        init=init,
+        fine_tune=spec.fine_tune,
+    )
     cfg, train_set, val_set = prepared.run, prepared.train_set, prepared.val_set
     if prepared.notes:
         ctx.progress(0, message="; ".join(prepared.notes))
@@ -116,15 +122,27 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
         announce_new_checkpoints({"best.pt": step, "last.pt": previous_step})
         previous_step = step
         ctx.progress(
-            step, int(info["total_steps"]), eta_s=float(info["eta_s"]),
-            loss=float(info["loss"]), lr=float(info["lr"]), samples_per_s=float(info["samples_per_s"]),
+            step,
+            int(info["total_steps"]),
+            eta_s=float(info["eta_s"]),
+            loss=float(info["loss"]),
+            lr=float(info["lr"]),
+            samples_per_s=float(info["samples_per_s"]),
             epoch=float(info["epoch"]),
-        )  # fmt: skip
+        )
 
     result = train(
-        cfg, train_set, val_set if len(val_set) else None, out, device=spec.device, progress=on_progress,
-        cancel=lambda: ctx.cancelled, show_progress=False, resume=True, init=init,
-    )  # fmt: skip
+        cfg,
+        train_set,
+        val_set if len(val_set) else None,
+        out,
+        device=spec.device,
+        progress=on_progress,
+        cancel=lambda: ctx.cancelled,
+        show_progress=False,
+        resume=True,
+        init=init,
+    )
     announce_new_checkpoints({"best.pt": result.step, "last.pt": result.step})
     ctx.output(out)  # the whole run directory, for a hub that does not share this disk
     return {

@@ -35,8 +35,17 @@ VARIANTS: dict[str, dict] = {
     },
     "joint+cells 2 blocks": {"wm_tokens": "cells", "action_blocks": 2},
 }
-NO_AUGMENTATION = dict(crop=0.0, translate=0.0, scale=(1.0, 1.0), hflip=0.0, brightness=0.0, contrast=0.0,
-                       saturation=0.0, hue=0.0, mixup=False)  # fmt: skip
+NO_AUGMENTATION = dict(
+    crop=0.0,
+    translate=0.0,
+    scale=(1.0, 1.0),
+    hflip=0.0,
+    brightness=0.0,
+    contrast=0.0,
+    saturation=0.0,
+    hue=0.0,
+    mixup=False,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,17 +57,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--lr", type=float, default=3e-3, help="peak learning rate of the one-cycle schedule")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--task", choices=("follow", "match"), default="follow",
-                        help="follow: fixed markers, the demonstration names the target; match: markers shuffled per "
-                             "episode, the agent must find the demonstrated colour in its own frame")  # fmt: skip
+    parser.add_argument(
+        "--task",
+        choices=("follow", "match"),
+        default="follow",
+        help="follow: fixed markers, the demonstration names the target; match: markers shuffled per "
+        "episode, the agent must find the demonstrated colour in its own frame",
+    )
     parser.add_argument(
         "--demo-task-weight",
         type=float,
         default=0.0,
         help="weight of the auxiliary demonstration-task loss (TrainConfig.demo_task_weight)",
     )
-    parser.add_argument("--episodes", type=int, default=0,
-                        help="episodes per task and role (default 3 for follow, 12 for match)")  # fmt: skip
+    parser.add_argument(
+        "--episodes",
+        type=int,
+        default=0,
+        help="episodes per task and role (default 3 for follow, 12 for match)",
+    )
 
 
 def measure(args: argparse.Namespace) -> dict:
@@ -77,20 +94,38 @@ def measure(args: argparse.Namespace) -> dict:
     every = max(1, args.steps // max(1, args.val_points))
     match = args.task == "match"
     episodes = args.episodes or (12 if match else 3)
-    result: dict = {"task": args.task, "episodes_per_task": episodes, "steps": args.steps, "lr": args.lr,
-                    "demo_task_weight": args.demo_task_weight,
-                    "threads": args.threads,
-                    "seed": args.seed, "mean_target_final_err_m": None, "variants": {}}  # fmt: skip
+    result: dict = {
+        "task": args.task,
+        "episodes_per_task": episodes,
+        "steps": args.steps,
+        "lr": args.lr,
+        "demo_task_weight": args.demo_task_weight,
+        "threads": args.threads,
+        "seed": args.seed,
+        "mean_target_final_err_m": None,
+        "variants": {},
+    }
     for name in names:
-        run = tiny_run_config(max_steps=args.steps, lr_max=args.lr, val_every=every, val_batches=0, seed=args.seed,
-                              demo_task_weight=args.demo_task_weight, **NO_AUGMENTATION)  # fmt: skip
+        run = tiny_run_config(
+            max_steps=args.steps,
+            lr_max=args.lr,
+            val_every=every,
+            val_batches=0,
+            seed=args.seed,
+            demo_task_weight=args.demo_task_weight,
+            **NO_AUGMENTATION,
+        )
         for field, value in VARIANTS[name].items():
             setattr(run.model, field, value)
         t0 = time.perf_counter()
         with tempfile.TemporaryDirectory() as out:
-            train(run, SyntheticPairs(n_tasks=4, episodes_per_task=episodes, shuffle_targets=match),
-                  SyntheticPairs(n_tasks=4, episodes_per_task=3, split="val", shuffle_targets=match), out,
-                  show_progress=False)  # fmt: skip
+            train(
+                run,
+                SyntheticPairs(n_tasks=4, episodes_per_task=episodes, shuffle_targets=match),
+                SyntheticPairs(n_tasks=4, episodes_per_task=3, split="val", shuffle_targets=match),
+                out,
+                show_progress=False,
+            )
             lines = (Path(out) / "metrics.jsonl").read_text().splitlines()
         vals = [r for r in map(json.loads, lines) if r.get("split") == "val"]
         points = [

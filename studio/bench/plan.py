@@ -114,8 +114,10 @@ def measure(args: argparse.Namespace) -> dict:
             agents = store.episodes(task=task, role="agent")[-args.scenes :]
             experts = store.episodes(task=task, role="expert")
             if not agents or not experts:
-                raise SystemExit(f"studio bench plan: {task!r} needs stored agent and expert episodes in "
-                                 f"{args.data_dir} (studio collect --robot panda / --robot sawyer)")  # fmt: skip
+                raise SystemExit(
+                    f"studio bench plan: {task!r} needs stored agent and expert episodes in "
+                    f"{args.data_dir} (studio collect --robot panda / --robot sawyer)"
+                )
             demos: dict[str, tuple] = {}
 
             def plan(expert_meta, agent, demos=demos, obj=obj):

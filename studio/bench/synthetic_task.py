@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -146,7 +147,7 @@ def tiny_run_config(**train_overrides):
         head_hidden=64,
         head_dropout=0.0,
     )
-    train = dict(
+    train: dict[str, Any] = dict(
         batch_size=8,
         max_steps=10,
         val_every=5,

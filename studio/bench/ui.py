@@ -34,9 +34,12 @@ import numpy as np
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
-    "--no-sandbox", "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--no-sandbox",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
     "--no-first-run",
-]  # fmt: skip
+]
 #: WebGL without a GPU, by backend. Chromium's default is SwiftShader (``--disable-gpu``); Mesa's llvmpipe
 #: through ANGLE's EGL backend (the libEGL the studio installs for MuJoCo) draws the studio's scene at about a
 #: third of SwiftShader's CPU per frame on these machines (docs/ui.md, `studio bench ui --webgl ...`).
@@ -51,9 +54,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--drag-hz", type=float, default=60.0, help="gizmo updates per second")
     parser.add_argument("--robot", default="sawyer", choices=("sawyer", "panda"))
     parser.add_argument("--scene", default="pick_place", help="pick_place, push or metaworld (the Sawyer)")
-    parser.add_argument("--max-faces", type=int, default=None,
-                        help="triangle budget per mesh in the browser (default: the studio's, scene_view.MAX_FACES; "
-                             "0 = the scene's own meshes)")  # fmt: skip
+    parser.add_argument(
+        "--max-faces",
+        type=int,
+        default=None,
+        help="triangle budget per mesh in the browser (default: the studio's, scene_view.MAX_FACES; "
+        "0 = the scene's own meshes)",
+    )
     parser.add_argument(
         "--dpr",
         type=float,
@@ -66,8 +73,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="cap on pose frames per second to a tab (default: the studio's, app.MAX_POSE_HZ)",
     )
-    parser.add_argument("--webgl", choices=tuple(WEBGL_ARGS), default="llvmpipe",
-                        help="software WebGL backend of the headless browser")  # fmt: skip
+    parser.add_argument(
+        "--webgl",
+        choices=tuple(WEBGL_ARGS),
+        default="llvmpipe",
+        help="software WebGL backend of the headless browser",
+    )
     parser.add_argument("--chromium", default=CHROMIUM, help="Chromium executable for Playwright")
 
 
@@ -204,8 +215,10 @@ def measure(args: argparse.Namespace) -> dict:
                 teleop = tab.teleop
                 if (args.scene, args.robot) != (teleop.scene.value, teleop.robot.value):
                     if args.scene not in teleop.scene.options:
-                        raise SystemExit(f"studio bench ui: unknown scene {args.scene!r}; "
-                                         f"choose from {teleop.scene.options}")  # fmt: skip
+                        raise SystemExit(
+                            f"studio bench ui: unknown scene {args.scene!r}; "
+                            f"choose from {teleop.scene.options}"
+                        )
                     teleop.scene.value = args.scene
                     teleop.narrow_choices()
                     teleop.robot.value = args.robot

@@ -315,9 +315,20 @@ def collect(
         nonlocal made, failed_attempts
         made, failed_attempts = _account(res, made, failed_attempts, missing, errors, bar)
         if on_slot is not None:
-            on_slot(SlotDone(task=res[0], index=res[1], stored=res[2], done=done, todo=len(todo),
-                             requested=requested, already_present=requested - len(todo), made=made,
-                             failed_attempts=failed_attempts, missing=len(missing)))  # fmt: skip
+            on_slot(
+                SlotDone(
+                    task=res[0],
+                    index=res[1],
+                    stored=res[2],
+                    done=done,
+                    todo=len(todo),
+                    requested=requested,
+                    already_present=requested - len(todo),
+                    made=made,
+                    failed_attempts=failed_attempts,
+                    missing=len(missing),
+                )
+            )
 
     bar = tqdm(
         total=len(todo),

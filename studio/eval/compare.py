@@ -89,8 +89,14 @@ class CompareRow:
 
     @classmethod
     def from_dict(cls, d: dict) -> CompareRow:
-        return cls(d["task"], int(d["index"]), int(d["seed"]), d["expert_episode_id"], Outcome(**d["a"]),
-                   Outcome(**d["b"]))  # fmt: skip
+        return cls(
+            d["task"],
+            int(d["index"]),
+            int(d["seed"]),
+            d["expert_episode_id"],
+            Outcome(**d["a"]),
+            Outcome(**d["b"]),
+        )
 
 
 def order_rows(rows: Iterable[CompareRow]) -> list[CompareRow]:
@@ -209,9 +215,17 @@ def stored_evaluations(catalog, limit: int = 20000) -> list[StoredEvaluation]:
     for eval_id, rs in groups.items():
         extra = rs[0].extra or {}
         planned = extra.get("compare_episodes")
-        out.append(StoredEvaluation(eval_id, rs[0].checkpoint_id or ORACLE, len(rs), sorted({r.task for r in rs}),
-                                    min(r.created for r in rs), str(extra.get("compare_label", "")),
-                                    int(planned) if planned is not None else None))  # fmt: skip
+        out.append(
+            StoredEvaluation(
+                eval_id,
+                rs[0].checkpoint_id or ORACLE,
+                len(rs),
+                sorted({r.task for r in rs}),
+                min(r.created for r in rs),
+                str(extra.get("compare_label", "")),
+                int(planned) if planned is not None else None,
+            )
+        )
     return sorted(out, key=lambda e: -e.created)
 
 
@@ -231,9 +245,16 @@ def pair_rollouts(a: Iterable[RolloutRecord], b: Iterable[RolloutRecord]) -> lis
         if ra is None or key(rb) in seen or rb.seed is None or rb.expert_episode_id is None:
             continue
         seen.add(key(rb))
-        rows.append(CompareRow(rb.task, int((ra.extra or {}).get("index", 0)), int(rb.seed), rb.expert_episode_id,
-                               Outcome(ra.id, ra.success, ra.failure_stage),
-                               Outcome(rb.id, rb.success, rb.failure_stage)))  # fmt: skip
+        rows.append(
+            CompareRow(
+                rb.task,
+                int((ra.extra or {}).get("index", 0)),
+                int(rb.seed),
+                rb.expert_episode_id,
+                Outcome(ra.id, ra.success, ra.failure_stage),
+                Outcome(rb.id, rb.success, rb.failure_stage),
+            )
+        )
     return rows
 
 
@@ -330,8 +351,12 @@ class Comparison:
 
     def to_dict(self) -> dict:
         d = {k: v for k, v in asdict(self).items() if k != "rows"}
-        return {**d, "eval_ids": list(self.eval_ids), "totals": self.totals(),
-                "rows": [r.to_dict() for r in self.rows]}  # fmt: skip
+        return {
+            **d,
+            "eval_ids": list(self.eval_ids),
+            "totals": self.totals(),
+            "rows": [r.to_dict() for r in self.rows],
+        }
 
 
 def default_label(checkpoint: str) -> str:
@@ -437,11 +462,20 @@ def compare(
     labels = (label_a or default_label(checkpoint_a), label_b or default_label(checkpoint_b))
     compare_id = f"cmp-{uuid.uuid4().hex[:10]}"
     sides = [
-        PolicyRun(checkpoint, None if checkpoint == ORACLE else ids[k], f"{compare_id}-{side}",
-                  {"compare_id": compare_id, "compare_side": side, "compare_label": labels[k],
-                   "compare_episodes": len(jobs), "checkpoint": checkpoint})
+        PolicyRun(
+            checkpoint,
+            None if checkpoint == ORACLE else ids[k],
+            f"{compare_id}-{side}",
+            {
+                "compare_id": compare_id,
+                "compare_side": side,
+                "compare_label": labels[k],
+                "compare_episodes": len(jobs),
+                "checkpoint": checkpoint,
+            },
+        )
         for k, (side, checkpoint) in enumerate((("a", checkpoint_a), ("b", checkpoint_b)))
-    ]  # fmt: skip
+    ]
     work = [(job, side) for job in jobs for side in sides]  # A and B of an episode one after the other
     got: dict[int, dict[int, RolloutSummary]] = {}
 
@@ -454,19 +488,46 @@ def compare(
             )
 
     started = time.perf_counter()
-    summaries = run_rollouts(work, scene=scene, robot=robot, data_dir=root, replan=replan, workers=workers,
-                             on_done=done, should_stop=should_stop)  # fmt: skip
+    summaries = run_rollouts(
+        work,
+        scene=scene,
+        robot=robot,
+        data_dir=root,
+        replan=replan,
+        workers=workers,
+        on_done=done,
+        should_stop=should_stop,
+    )
     rows = [_row(job.index, summaries[2 * k], summaries[2 * k + 1]) for k, job in enumerate(jobs)]
-    return Comparison(compare_id, checkpoint_a, checkpoint_b, labels[0], labels[1], scene, robot, list(tasks), episodes,
-                      seed, replan, max(1, min(workers, len(work))), time.perf_counter() - started,
-                      order_rows(rows))  # fmt: skip
+    return Comparison(
+        compare_id,
+        checkpoint_a,
+        checkpoint_b,
+        labels[0],
+        labels[1],
+        scene,
+        robot,
+        list(tasks),
+        episodes,
+        seed,
+        replan,
+        max(1, min(workers, len(work))),
+        time.perf_counter() - started,
+        order_rows(rows),
+    )
 
 
 def _row(index: int, a: RolloutSummary, b: RolloutSummary) -> CompareRow:
     if (a.task, a.seed, a.expert_episode_id) != (b.task, b.seed, b.expert_episode_id):
         raise AssertionError(f"A and B ran different episodes: {a} / {b}")  # never: both come from one job
-    return CompareRow(a.task, index, a.seed, a.expert_episode_id, Outcome(a.rollout_id, a.success, a.failure_stage),
-                      Outcome(b.rollout_id, b.success, b.failure_stage))  # fmt: skip
+    return CompareRow(
+        a.task,
+        index,
+        a.seed,
+        a.expert_episode_id,
+        Outcome(a.rollout_id, a.success, a.failure_stage),
+        Outcome(b.rollout_id, b.success, b.failure_stage),
+    )
 
 
 # ---------------------------------------------------------------------------------------------- command line
@@ -490,8 +551,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--label-a", default=None, help="A's name in the table (default: the file's name)")
     parser.add_argument("--label-b", default=None, help="B's name in the table (default: the file's name)")
     parser.add_argument("--scene", default="pick_place", help="scene whose split 'held-out' refers to")
-    parser.add_argument("--tasks", default="held-out",
-                        help="held-out (= test) | train | all | comma-separated task names of one scene")  # fmt: skip
+    parser.add_argument(
+        "--tasks",
+        default="held-out",
+        help="held-out (= test) | train | all | comma-separated task names of one scene",
+    )
     parser.add_argument(
         "--episodes", type=int, default=10, help="episodes per task (each rolled out by A and B)"
     )
@@ -516,9 +580,20 @@ def run(args: argparse.Namespace) -> int:
             experts = expert_embodiments_of(args)
         except ValueError as e:
             raise CompareInputError(str(e)) from None
-        result = compare(args.a, args.b, tasks, args.episodes, args.seed, replan=args.replan, workers=args.workers,
-                         data_dir=args.data_dir, robot=args.robot, label_a=args.label_a, label_b=args.label_b,
-                         expert_embodiments=experts)  # fmt: skip
+        result = compare(
+            args.a,
+            args.b,
+            tasks,
+            args.episodes,
+            args.seed,
+            replan=args.replan,
+            workers=args.workers,
+            data_dir=args.data_dir,
+            robot=args.robot,
+            label_a=args.label_a,
+            label_b=args.label_b,
+            expert_embodiments=experts,
+        )
     except CompareInputError as e:
         print(f"studio compare: {e}", file=sys.stderr)
         return 2

@@ -210,10 +210,23 @@ def _run_job(
             **policy.extra,
         },
     )
-    return RolloutSummary(record.id, job.task, job.index, job.env_seed, expert_id, out.success,
-                          out.stages["reached"], out.stages["grasped"], out.stages["placed"], out.failure_stage,
-                          out.replans, out.planning_time_s, out.duration_s, out.attempt_stages,
-                          [p.planning_time_s for p in out.plans])  # fmt: skip
+    return RolloutSummary(
+        record.id,
+        job.task,
+        job.index,
+        job.env_seed,
+        expert_id,
+        out.success,
+        out.stages["reached"],
+        out.stages["grasped"],
+        out.stages["placed"],
+        out.failure_stage,
+        out.replans,
+        out.planning_time_s,
+        out.duration_s,
+        out.attempt_stages,
+        [p.planning_time_s for p in out.plans],
+    )
 
 
 def _run_chunk(work: list[tuple[int, EvalJob, PolicyRun]], replan: int, keep: bool):
@@ -328,10 +341,18 @@ def with_budget(report: dict, replan: int, tasks: Collection[str] | None = None)
         cut = tasks is None or r.task in tasks
         if cut and len(r.attempt_stages) > replan + 1:  # it used more attempts than the smaller budget allows
             stages, times = r.attempt_stages[replan], r.attempt_planning_s[: replan + 1]
-            r = replace(r, success=stages["placed"], reached=stages["reached"], grasped=stages["grasped"],
-                        placed=stages["placed"], failure_stage=failure_stage(stages), replans=replan,
-                        planning_time_s=float(np.mean(times)), attempt_stages=r.attempt_stages[: replan + 1],
-                        attempt_planning_s=times)  # fmt: skip
+            r = replace(
+                r,
+                success=stages["placed"],
+                reached=stages["reached"],
+                grasped=stages["grasped"],
+                placed=stages["placed"],
+                failure_stage=failure_stage(stages),
+                replans=replan,
+                planning_time_s=float(np.mean(times)),
+                attempt_stages=r.attempt_stages[: replan + 1],
+                attempt_planning_s=times,
+            )
         rows.append(r)
     derived = summarise(rows)
     keep = {k: v for k, v in report.items() if k not in derived}
@@ -376,9 +397,15 @@ def register_checkpoint(data_dir, checkpoint: str | os.PathLike) -> str:
     with Catalog(Path(data_dir) / CATALOG_NAME) as catalog:
         if not catalog.has_checkpoint(checkpoint_id):  # reading the file (for its step) only the first time
             step = int(load_checkpoint(path).get("step", 0))
-            catalog.ensure_checkpoint(CheckpointRecord(id=checkpoint_id, run_id=run_id, step=step, path=str(path)),
-                                      RunRecord(id=run_id, status="done", name=SHIPPED_RUN_NAME if shipped else run_id,
-                                                path=str(path.parent)))  # fmt: skip
+            catalog.ensure_checkpoint(
+                CheckpointRecord(id=checkpoint_id, run_id=run_id, step=step, path=str(path)),
+                RunRecord(
+                    id=run_id,
+                    status="done",
+                    name=SHIPPED_RUN_NAME if shipped else run_id,
+                    path=str(path.parent),
+                ),
+            )
     return checkpoint_id
 
 
@@ -433,8 +460,16 @@ def evaluate(
             bar.update(1)
 
     try:
-        rows = run_rollouts([(j, policy) for j in jobs], scene=scene, robot=robot, data_dir=root, replan=replan,
-                            workers=workers, keep=keep, on_done=tick)  # fmt: skip
+        rows = run_rollouts(
+            [(j, policy) for j in jobs],
+            scene=scene,
+            robot=robot,
+            data_dir=root,
+            replan=replan,
+            workers=workers,
+            keep=keep,
+            on_done=tick,
+        )
     finally:
         if bar:
             bar.close()

@@ -63,14 +63,36 @@ def render_markdown(
     """
     groups = groups or {}
     tasks = sorted({t for _, _, r in reports for t in r["tasks"]})
-    head = ["policy", "re-plans", *tasks, *groups, "all", "reached", "grasped", "placed", "plan ms", "rollouts",
-            "wall min"]  # fmt: skip
+    head = [
+        "policy",
+        "re-plans",
+        *tasks,
+        *groups,
+        "all",
+        "reached",
+        "grasped",
+        "placed",
+        "plan ms",
+        "rollouts",
+        "wall min",
+    ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, replan, r in reports:
         per_task = [f"{r['tasks'][t]['success']:.1%}" if t in r["tasks"] else "–" for t in tasks]
         per_group = [_group_mean(r, g) for g in groups.values()]
-        row = [name, str(replan), *per_task, *per_group, f"**{r['success']:.1%}**", _mean(r, "reached"),
-               _mean(r, "grasped"), _mean(r, "placed"), f"{r['mean_planning_ms']:.0f}", str(r["rollouts"]), f"{r['wall_s'] / 60:.1f}"]  # fmt: skip
+        row = [
+            name,
+            str(replan),
+            *per_task,
+            *per_group,
+            f"**{r['success']:.1%}**",
+            _mean(r, "reached"),
+            _mean(r, "grasped"),
+            _mean(r, "placed"),
+            f"{r['mean_planning_ms']:.0f}",
+            str(r["rollouts"]),
+            f"{r['wall_s'] / 60:.1f}",
+        ]
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
@@ -101,8 +123,14 @@ def json_rows(reports: list[tuple[str, int | str, dict]]) -> list[dict]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--policy", type=parse_policy, action="append", required=True, metavar="NAME=CKPT",
-                        help="a checkpoint to evaluate, named for the table (repeatable; 'oracle' allowed)")  # fmt: skip
+    parser.add_argument(
+        "--policy",
+        type=parse_policy,
+        action="append",
+        required=True,
+        metavar="NAME=CKPT",
+        help="a checkpoint to evaluate, named for the table (repeatable; 'oracle' allowed)",
+    )
     parser.add_argument("--scene", default="pick_place")
     parser.add_argument("--episodes", type=int, default=100, help="rollouts per held-out task")
     parser.add_argument(
@@ -134,15 +162,26 @@ def run(args: argparse.Namespace) -> int:
     most = max(args.replan)
     for name, checkpoint in args.policy:
         print(f"== {name}, re-plans {most}", file=sys.stderr, flush=True)
-        report = evaluate(checkpoint, tasks, args.episodes, args.seed, most, args.workers, args.data_dir,
-                          expert_embodiments=experts, grasp=args.grasp_correction)  # fmt: skip
+        report = evaluate(
+            checkpoint,
+            tasks,
+            args.episodes,
+            args.seed,
+            most,
+            args.workers,
+            args.data_dir,
+            expert_embodiments=experts,
+            grasp=args.grasp_correction,
+        )
         reports += budget_rows(name, report, args.replan, split)
     table = render_markdown(reports, split.test_groups)
     machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, {platform.platform()}"
     demos = f"; demonstrations by {', '.join(experts)}" if experts else ""
     grasp = "" if args.grasp_correction == "auto" else f"; grasp correction: {args.grasp_correction}"
-    text = (f"Held-out tasks of `{args.scene}` ({', '.join(tasks)}), {args.episodes} rollouts per task, seed "
-            f"{args.seed}{demos}{grasp}; {machine}.\n\n{table}")  # fmt: skip
+    text = (
+        f"Held-out tasks of `{args.scene}` ({', '.join(tasks)}), {args.episodes} rollouts per task, seed "
+        f"{args.seed}{demos}{grasp}; {machine}.\n\n{table}"
+    )
     print(text)
     if args.out:
         out = Path(args.out)

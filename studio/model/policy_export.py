@@ -37,9 +37,15 @@ def _weights(state: dict[str, torch.Tensor], half: bool) -> dict[str, torch.Tens
     return {k: v.half() if half and v.is_floating_point() else v for k, v in state.items()}
 
 
-def export_policy(checkpoint: str | Path, out: str | Path, *, decoder: str | Path | None = None,
-                  half: bool = True, guidance: float | None = None,
-                  guidance_gate: float | None = None) -> dict[str, int]:  # fmt: skip
+def export_policy(
+    checkpoint: str | Path,
+    out: str | Path,
+    *,
+    decoder: str | Path | None = None,
+    half: bool = True,
+    guidance: float | None = None,
+    guidance_gate: float | None = None,
+) -> dict[str, int]:
     """Write the policy (and decoder) files; returns their sizes in bytes. ``guidance`` and ``guidance_gate``
     set the policy's demonstration guidance and its gate (``ModelConfig``; None keeps the checkpoint's)."""
     from studio.model.checkpoint import load_checkpoint
@@ -141,8 +147,10 @@ def run(args: argparse.Namespace) -> int:
             args.guidance_gate, n = gate_from_training_demonstrations(
                 args.checkpoint, args.data, args.gate_percentile
             )
-            print(f"guidance gate {args.guidance_gate:.4f}: the {args.gate_percentile:g}th percentile of {n} "
-                  "training demonstrations' gains")  # fmt: skip
+            print(
+                f"guidance gate {args.guidance_gate:.4f}: the {args.gate_percentile:g}th percentile of {n} "
+                "training demonstrations' gains"
+            )
         sizes = export_policy(
             args.checkpoint,
             args.out,

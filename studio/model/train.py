@@ -475,12 +475,16 @@ def _load_init(model: OSVIWM, run: RunConfig, init: str | Path, device: torch.de
     diffs = _config_differences({"model": saved}, {"model": current, "train": {}})
     if diffs:
         raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")
-    state = {k: v.float() if v.is_floating_point() else v for k, v in start["model"].items()
-             if not k.startswith(untrained)}  # fmt: skip
+    state = {
+        k: v.float() if v.is_floating_point() else v
+        for k, v in start["model"].items()
+        if not k.startswith(untrained)
+    }
     missing, unexpected = model.load_state_dict(state, strict=False)
     if unexpected or [k for k in missing if not k.startswith(untrained)]:
-        raise CheckpointMismatch(f"{init}: weights do not match the model (missing {missing}, unexpected "
-                                 f"{unexpected})")  # fmt: skip
+        raise CheckpointMismatch(
+            f"{init}: weights do not match the model (missing {missing}, unexpected {unexpected})"
+        )
 
 
 class _Collate:

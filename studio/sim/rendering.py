@@ -72,8 +72,15 @@ class Renderers:
         self.model = model
         self._by_size: dict[tuple[int, int, bool], mujoco.Renderer] = {}
 
-    def render(self, data: mujoco.MjData, camera: int | str, size: tuple[int, int], *, depth: bool = False,
-               scene_option: mujoco.MjvOption | None = None):  # fmt: skip
+    def render(
+        self,
+        data: mujoco.MjData,
+        camera: int | str,
+        size: tuple[int, int],
+        *,
+        depth: bool = False,
+        scene_option: mujoco.MjvOption | None = None,
+    ):
         """RGB (H, W, 3) uint8, or depth (H, W) float32 in metres, from ``camera``."""
         key = (int(size[0]), int(size[1]), depth)
         r = self._by_size.get(key)

@@ -350,16 +350,31 @@ class RunRegistry:
         return ck
 
     # ------------------------------------------------------------------ the catalog's runs and checkpoints
-    def register_run(self, catalog, run_id: str, *, status: str = "queued", scene: str | None = None,
-                     config: dict | None = None) -> None:  # fmt: skip
+    def register_run(
+        self,
+        catalog,
+        run_id: str,
+        *,
+        status: str = "queued",
+        scene: str | None = None,
+        config: dict | None = None,
+    ) -> None:
         """Add a run started from the browser to the store's catalog (once)."""
         from studio.data.catalog import RunRecord
 
         if any(r.id == run_id for r in catalog.runs()):
             return
         with catalog.transaction():
-            catalog.add_run(RunRecord(id=run_id, status=status, name=run_id, scene=scene, config=config or {},
-                                      path=str(self.runs_dir / run_id)))  # fmt: skip
+            catalog.add_run(
+                RunRecord(
+                    id=run_id,
+                    status=status,
+                    name=run_id,
+                    scene=scene,
+                    config=config or {},
+                    path=str(self.runs_dir / run_id),
+                )
+            )
 
     def register_checkpoint(self, catalog, ck: Checkpoint) -> None:
         """Make ``ck`` known to the catalog (rollouts refer to their checkpoint by id), with its run."""
@@ -375,8 +390,18 @@ class RunRegistry:
         status = {"finished": "done", "cancelled": "cancelled"}.get(ended, "running")
         name = SHIPPED_RUN_NAME if ck.run_id is None else run_id
         catalog.ensure_checkpoint(
-            CheckpointRecord(id=ck.id, run_id=run_id, step=info.step if info else 0, path=ck.path,
-                             val_loss=info.best_val if info else None, is_best=ck.id.endswith("/best")),
-            RunRecord(id=run_id, status="done" if ck.run_id is None else status, name=name,
-                      path=str(Path(ck.path).parent)),
-        )  # fmt: skip
+            CheckpointRecord(
+                id=ck.id,
+                run_id=run_id,
+                step=info.step if info else 0,
+                path=ck.path,
+                val_loss=info.best_val if info else None,
+                is_best=ck.id.endswith("/best"),
+            ),
+            RunRecord(
+                id=run_id,
+                status="done" if ck.run_id is None else status,
+                name=name,
+                path=str(Path(ck.path).parent),
+            ),
+        )

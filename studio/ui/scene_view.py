@@ -224,9 +224,17 @@ class SceneView:
             if self._frustum is not None:
                 self._frustum.remove()
             self._frustum = self.scene.add_camera_frustum(
-                f"{self.root}_camera", fov=fov, aspect=aspect, scale=0.12, thickness=0.004,
-                color=(60, 60, 60), image=image, jpeg_quality=70, position=pos, wxyz=wxyz,
-            )  # fmt: skip
+                f"{self.root}_camera",
+                fov=fov,
+                aspect=aspect,
+                scale=0.12,
+                thickness=0.004,
+                color=(60, 60, 60),
+                image=image,
+                jpeg_quality=70,
+                position=pos,
+                wxyz=wxyz,
+            )
             self._camera_key = key
 
     def set_camera_image(self, image: np.ndarray) -> None:
@@ -256,22 +264,35 @@ class SceneView:
             handles: list[viser.SceneNodeHandle] = []
             with self.client.atomic():
                 if len(wps) >= 2:
-                    handles.append(self.scene.add_spline_catmull_rom(
-                        f"/overlay/{name}/spline", wps[:, :3], thickness=0.003 if faint else 0.004,
-                        color=color))  # fmt: skip
+                    handles.append(
+                        self.scene.add_spline_catmull_rom(
+                            f"/overlay/{name}/spline",
+                            wps[:, :3],
+                            thickness=0.003 if faint else 0.004,
+                            color=color,
+                        )
+                    )
                 for i, row in enumerate(wps):
                     closed = row[3] > 0.5
                     big = current == i
-                    handles.append(self.scene.add_icosphere(
-                        f"/overlay/{name}/wp{i}", radius=0.028 if big else 0.010 if faint else 0.013,
-                        color=CLOSED_RGB if closed else OPEN_RGB, position=row[:3],
-                        opacity=0.35 if faint else None if big or current is None else 0.55,
-                    ))  # fmt: skip
+                    handles.append(
+                        self.scene.add_icosphere(
+                            f"/overlay/{name}/wp{i}",
+                            radius=0.028 if big else 0.010 if faint else 0.013,
+                            color=CLOSED_RGB if closed else OPEN_RGB,
+                            position=row[:3],
+                            opacity=0.35 if faint else None if big or current is None else 0.55,
+                        )
+                    )
                     if not faint:
-                        handles.append(self.scene.add_label(
-                            f"/overlay/{name}/label{i}", f"{i + 1}{' ●' if closed else ''}",
-                            position=row[:3] + np.array([0.0, 0.0, 0.035]), font_screen_scale=0.8,
-                        ))  # fmt: skip
+                        handles.append(
+                            self.scene.add_label(
+                                f"/overlay/{name}/label{i}",
+                                f"{i + 1}{' ●' if closed else ''}",
+                                position=row[:3] + np.array([0.0, 0.0, 0.035]),
+                                font_screen_scale=0.8,
+                            )
+                        )
             self._overlays[name] = handles
 
     def show_null_plan(self, waypoints: np.ndarray | None) -> None:
@@ -298,8 +319,9 @@ class SceneView:
                 handles[0].position = pos
                 return
             self.clear_overlay(name)
-            self._overlays[name] = [self.scene.add_icosphere(f"/overlay/{name}", radius=radius, color=color,
-                                                             position=pos)]  # fmt: skip
+            self._overlays[name] = [
+                self.scene.add_icosphere(f"/overlay/{name}", radius=radius, color=color, position=pos)
+            ]
 
     def show_path(
         self,
@@ -330,11 +352,17 @@ class SceneView:
                         seg = pts[idx[start : end + 1]]
                         if len(seg) >= 2:
                             rgb = color or PATH_RGB["closed" if closed[idx[start]] else "open"]
-                            handles.append(self.scene.add_spline_catmull_rom(
-                                f"/overlay/{name}/s{k}", seg, thickness=0.005, color=rgb))  # fmt: skip
+                            handles.append(
+                                self.scene.add_spline_catmull_rom(
+                                    f"/overlay/{name}/s{k}", seg, thickness=0.005, color=rgb
+                                )
+                            )
                         start = k
-                handles.append(self.scene.add_icosphere(
-                    f"/overlay/{name}/start", radius=0.01, color=(255, 255, 255), position=pts[0]))  # fmt: skip
+                handles.append(
+                    self.scene.add_icosphere(
+                        f"/overlay/{name}/start", radius=0.01, color=(255, 255, 255), position=pts[0]
+                    )
+                )
             self._overlays[name] = handles
 
     def clear(self) -> None:

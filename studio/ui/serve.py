@@ -22,15 +22,22 @@ from studio.data.paths import add_data_dir_argument
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--host", default="127.0.0.1",
-                        help="interface to bind; 127.0.0.1 (default) keeps the studio on this machine")  # fmt: skip
+    parser.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="interface to bind; 127.0.0.1 (default) keeps the studio on this machine",
+    )
     parser.add_argument(
         "--port", type=int, default=8080, help="web port (the next free one is used if taken)"
     )
     add_data_dir_argument(parser)
-    parser.add_argument("--workers", choices=("embedded", "default", "none"), default="embedded",
-                        help="embedded (default, alias: default): start one sim worker and one trainer here; none: wait for "
-                             "external workers")  # fmt: skip
+    parser.add_argument(
+        "--workers",
+        choices=("embedded", "default", "none"),
+        default="embedded",
+        help="embedded (default, alias: default): start one sim worker and one trainer here; none: wait for "
+        "external workers",
+    )
     parser.add_argument("--log-level", default="WARNING", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     bus.add_bus_arguments(parser, "hub")
 
@@ -62,8 +69,13 @@ def run(args: argparse.Namespace) -> int:
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"studio serve: serving on {args.host} — other machines can reach this studio", file=sys.stderr)
     try:
-        app = StudioApp(host=args.host, port=args.port, data_dir=args.data_dir, bus_config=config,
-                        workers="none" if args.workers == "none" else "embedded")  # fmt: skip
+        app = StudioApp(
+            host=args.host,
+            port=args.port,
+            data_dir=args.data_dir,
+            bus_config=config,
+            workers="none" if args.workers == "none" else "embedded",
+        )
     except bus.BusError as e:
         print(f"studio serve: {e}", file=sys.stderr)
         return 1

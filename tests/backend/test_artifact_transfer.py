@@ -59,8 +59,9 @@ class CorruptingServer(BlobServer):
         if isinstance(part, msg.BlobPart) and index == self.index and self.times > 0:
             self.times -= 1
             data = bytes([part.data[0] ^ 0xFF]) + part.data[1:]
-            return msg.BlobPart(blob=blob, index=index, count=part.count, size=part.size, digest=part.digest,
-                                data=data)  # fmt: skip
+            return msg.BlobPart(
+                blob=blob, index=index, count=part.count, size=part.size, digest=part.digest, data=data
+            )
         return part
 
 
@@ -201,8 +202,12 @@ def test_inputs_of_a_plan_job_are_fetched_into_the_workers_own_data_dir(sessions
         hub = HubArtifacts(hub_s, tmp_path / "hub", hub_store)
         worker = WorkerArtifacts(worker_s, tmp_path / "worker", "sim-1")
         try:
-            spec = {"checkpoint": str(tmp_path / "hub" / "runs" / "r1" / "best.pt"), "expert_episode_id": demo.id,
-                    "task": demo.task, "seed": 3}  # fmt: skip
+            spec = {
+                "checkpoint": str(tmp_path / "hub" / "runs" / "r1" / "best.pt"),
+                "expert_episode_id": demo.id,
+                "task": demo.task,
+                "seed": 3,
+            }
             inputs = hub.describe_inputs("plan", spec)
             assert inputs is not None
             manifest = msgspec.json.decode(hub.cache.blob_path(inputs).read_bytes(), type=InputManifest)

@@ -103,8 +103,11 @@ def test_collect_job_stores_episodes_with_progress_resumes_and_cancels(hub, work
         assert sorted((m.task, m.collect_index) for m in metas) == sorted(
             (t, i) for t in TASKS for i in (0, 1)
         )
-        assert all((m.role, m.source, m.embodiment, m.collect_seed, m.success) == ("expert", "scripted", "sawyer",
-                   3, True) for m in metas)  # fmt: skip
+        assert all(
+            (m.role, m.source, m.embodiment, m.collect_seed, m.success)
+            == ("expert", "scripted", "sawyer", 3, True)
+            for m in metas
+        )
 
     # The same spec again makes nothing: its slots are filled.
     final, result, progress = _events(client, spec)

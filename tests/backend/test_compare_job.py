@@ -28,8 +28,17 @@ def _mid_way(w) -> bool:
 @pytest.fixture
 def root(tmp_path):
     root = tmp_path / "data"
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=[TASK], episodes=2, data_dir=str(root),
-                          progress=False, image_size=(120, 160)))  # fmt: skip
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=[TASK],
+            episodes=2,
+            data_dir=str(root),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
     return root
 
 
@@ -39,8 +48,10 @@ def test_compare_job_reports_each_episode_and_returns_the_rows(hub, workers, roo
     assert "compare" in hub.directory.get("sim", "sim-c").status.job_kinds
     client = JobClient(hub.session)
     messages: list[str] = []
-    job = client.submit("compare", {"a": "oracle", "b": "oracle", "label_b": "oracle 2", "tasks": [TASK],
-                                    "episodes": 2, "seed": 3})  # fmt: skip
+    job = client.submit(
+        "compare",
+        {"a": "oracle", "b": "oracle", "label_b": "oracle 2", "tasks": [TASK], "episodes": 2, "seed": 3},
+    )
     with client.watch(job.job, on_progress=lambda p: messages.append(p.message)) as w:
         final = w.wait(timeout=180)
         assert final.state == "succeeded", final.reason
@@ -64,8 +75,10 @@ def test_bad_compare_specs_fail_with_the_reason(hub, workers, root):
     client = JobClient(hub.session)
     with pytest.raises(bus.RemoteError, match=r"bad_request: compare job spec lacks \['b'\]"):  # on arrival
         client.submit("compare", {"a": "oracle"})
-    for spec, says in (({"a": "oracle", "b": "oracle", "tasks": "pick_place/ball->red"}, "unknown task"),
-                       ({"a": "missing.pt", "b": "oracle", "tasks": [TASK]}, "no checkpoint file")):  # fmt: skip
+    for spec, says in (
+        ({"a": "oracle", "b": "oracle", "tasks": "pick_place/ball->red"}, "unknown task"),
+        ({"a": "missing.pt", "b": "oracle", "tasks": [TASK]}, "no checkpoint file"),
+    ):
         job = client.submit("compare", spec)
         with client.watch(job.job) as w:
             final = w.wait(timeout=60)

@@ -194,10 +194,23 @@ def test_the_insecure_flag_lets_the_hub_try_and_says_so(caplog):
 
 def test_studio_hub_refuses_an_unguarded_listen_in_one_line(tmp_path):
     out = subprocess.run(
-        [sys.executable, "-m", "studio.cli", "hub", "--listen", "tcp/0.0.0.0:7447", "--workers", "none",
-         "--data-dir", str(tmp_path / "data")],
-        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "studio.cli",
+            "hub",
+            "--listen",
+            "tcp/0.0.0.0:7447",
+            "--workers",
+            "none",
+            "--data-dir",
+            str(tmp_path / "data"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
     lines = [line for line in (out.stdout + out.stderr).splitlines() if line.strip()]
     assert out.returncode == 1 and len(lines) == 1, lines
     assert (
@@ -208,17 +221,44 @@ def test_studio_hub_refuses_an_unguarded_listen_in_one_line(tmp_path):
 
 def test_the_command_writes_a_bundle_and_says_how_to_start_each_role(tmp_path):
     out = subprocess.run(
-        [sys.executable, "-m", "studio.cli", "bus", "credentials", "--out", str(tmp_path / "creds"),
-         "--host", "studio-hub.lan", "--port", "7600"],
-        capture_output=True, text=True, timeout=90, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "studio.cli",
+            "bus",
+            "credentials",
+            "--out",
+            str(tmp_path / "creds"),
+            "--host",
+            "studio-hub.lan",
+            "--port",
+            "7600",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=90,
+        stdin=subprocess.DEVNULL,
+    )
     assert out.returncode == 0, out.stderr
     assert "studio worker sim --bus-config sim/bus.json5" in out.stdout
     assert read_config(tmp_path / "creds" / "sim" / "bus.json5")["connect"]["endpoints"] == [
         "tls/studio-hub.lan:7600"
     ]
     again = subprocess.run(
-        [sys.executable, "-m", "studio.cli", "bus", "credentials", "--out", str(tmp_path / "creds"), "--host", "x"],
-        capture_output=True, text=True, timeout=90, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "studio.cli",
+            "bus",
+            "credentials",
+            "--out",
+            str(tmp_path / "creds"),
+            "--host",
+            "x",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=90,
+        stdin=subprocess.DEVNULL,
+    )
     assert again.returncode == 1 and again.stderr.count("\n") == 1 and "--force" in again.stderr

@@ -114,10 +114,23 @@ def test_hub_process_with_client_workers_runs_jobs_and_stores_shipped_episodes(t
 def test_a_data_dir_that_cannot_be_written_is_one_line_at_startup(tmp_path):
     """/sys refuses new directories even to root: the hub says so in one line and exits."""
     out = subprocess.run(
-        [sys.executable, "-m", "studio.cli", "hub", "--data-dir", "/sys/kernel/studio-data", "--workers", "none",
-         "--listen", bus.loopback_endpoint(bus.free_loopback_port())],
-        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "studio.cli",
+            "hub",
+            "--data-dir",
+            "/sys/kernel/studio-data",
+            "--workers",
+            "none",
+            "--listen",
+            bus.loopback_endpoint(bus.free_loopback_port()),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
     assert out.returncode == 1
     lines = [line for line in (out.stdout + out.stderr).splitlines() if line.strip()]
     assert len(lines) == 1 and "cannot use the data dir /sys/kernel/studio-data" in lines[0], lines

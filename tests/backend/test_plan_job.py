@@ -65,8 +65,10 @@ def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
     info = guided_result["guidance"]
     assert (info["scale"], info["gate"], info["guided"]) == (3.0, 0.0, True) and info["gain"] > 0
 
-    bad = client.submit("plan", {"checkpoint": str(root / "missing.pt"), "expert_episode_id": episode,
-                                 "task": TASK, "seed": 3})  # fmt: skip
+    bad = client.submit(
+        "plan",
+        {"checkpoint": str(root / "missing.pt"), "expert_episode_id": episode, "task": TASK, "seed": 3},
+    )
     with client.watch(
         bad.job
     ) as w:  # the worker's first torch import happens here: cold, it can take a while
@@ -81,8 +83,17 @@ def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
 
     planned: list = []
     poses: list = []
-    job = client.submit("rollout", {"checkpoint": "oracle", "expert_episode_id": episode, "task": TASK,
-                                    "seed": 3, "speed": 1.0, "checkpoint_id": "oracle-ceiling"})  # fmt: skip
+    job = client.submit(
+        "rollout",
+        {
+            "checkpoint": "oracle",
+            "expert_episode_id": episode,
+            "task": TASK,
+            "seed": 3,
+            "speed": 1.0,
+            "checkpoint_id": "oracle-ceiling",
+        },
+    )
     sub = hub.session.declare_subscriber(keys.job_key(job.job, "poses"), lambda s: poses.append(s))
     t0 = time.monotonic()
     try:

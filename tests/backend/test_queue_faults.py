@@ -26,9 +26,16 @@ def _forged(
 ) -> msg.JobStatus:
     now = time.time()
     return msg.JobStatus(
-        job=job, kind=kind, worker_kind="train", state=state, attempt=attempt, worker=worker, reason="forged",
-        submitted_at=now, updated_at=now,
-    )  # fmt: skip
+        job=job,
+        kind=kind,
+        worker_kind="train",
+        state=state,
+        attempt=attempt,
+        worker=worker,
+        reason="forged",
+        submitted_at=now,
+        updated_at=now,
+    )
 
 
 def test_a_forged_report_neither_blocks_the_queue_nor_ends_a_running_job(hub, workers, tmp_path):
@@ -196,9 +203,16 @@ def test_a_journal_in_the_former_format_is_read(bare_queue, tmp_path):
     _session, make = bare_queue
     now = time.time()
     status = msg.JobStatus(
-        job="old-1", kind="nobody", worker_kind="none", state="succeeded", attempt=1, worker="w", reason="",
-        submitted_at=now, updated_at=now,
-    )  # fmt: skip
+        job="old-1",
+        kind="nobody",
+        worker_kind="none",
+        state="succeeded",
+        attempt=1,
+        worker="w",
+        reason="",
+        submitted_at=now,
+        updated_at=now,
+    )
     import msgspec
 
     path = Path(tmp_path / "jobs" / "queue.json")

@@ -43,9 +43,22 @@ def test_replay_refuses_an_episode_without_robot_state(tmp_path):
     from studio.sim.camera import CameraModel
 
     cam = CameraModel(32, 24, np.array([[30.0, 0, 16], [0, 30, 12], [0, 0, 1]]), np.eye(4))
-    meta = EpisodeMeta(id="20250101-000000-000-abcdef", task="pick_place/cube->red", scene="pick_place",
-                       embodiment="human", role="expert", source="upload", seed=None, success=None,
-                       created=0.0, num_frames=12, num_steps=0, height=24, width=32, fps=10.0)  # fmt: skip
+    meta = EpisodeMeta(
+        id="20250101-000000-000-abcdef",
+        task="pick_place/cube->red",
+        scene="pick_place",
+        embodiment="human",
+        role="expert",
+        source="upload",
+        seed=None,
+        success=None,
+        created=0.0,
+        num_frames=12,
+        num_steps=0,
+        height=24,
+        width=32,
+        fps=10.0,
+    )
     ep = Episode(meta, cam, np.zeros((12, 24, 32, 3), np.uint8), np.arange(12) / 10.0)
     with EpisodeStore(tmp_path) as store:
         store.add_episode(ep)

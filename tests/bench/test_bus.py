@@ -17,9 +17,12 @@ def test_job_phase_reports_submission_rates_per_queue_length_and_idle_cpu():
     args = parser.parse_args(["--phases", "jobs", "--queued", "10,600", "--submits", "50"])
     out = bus_bench.measure(args)
     assert set(out) == {
-        "job_submit_per_s_at_10_queued", "job_submit_per_s_at_600_queued", "job_queue_idle_cpu", "job_queue_jobs",
+        "job_submit_per_s_at_10_queued",
+        "job_submit_per_s_at_600_queued",
+        "job_queue_idle_cpu",
+        "job_queue_jobs",
         "job_journal_bytes",
-    }  # fmt: skip
+    }
     assert out["job_queue_jobs"] == 650 and out["job_journal_bytes"] > 0
     assert out["job_submit_per_s_at_600_queued"] > out["job_submit_per_s_at_10_queued"] / 3
     assert out["job_queue_idle_cpu"] < 0.05

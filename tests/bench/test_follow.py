@@ -51,12 +51,38 @@ def test_match_task_shuffles_markers_and_the_path_ends_at_the_demonstrated_colou
 
 
 def test_match_variant_runs_with_and_without_the_demonstration_task_loss():
-    result = follow_bench.measure(_args("--task", "match", "--episodes", "2", "--steps", "2", "--val-points", "1",
-                                        "--variants", "cross+cells 2 blocks"))  # fmt: skip
+    result = follow_bench.measure(
+        _args(
+            "--task",
+            "match",
+            "--episodes",
+            "2",
+            "--steps",
+            "2",
+            "--val-points",
+            "1",
+            "--variants",
+            "cross+cells 2 blocks",
+        )
+    )
     assert result["task"] == "match" and result["episodes_per_task"] == 2 and result["demo_task_weight"] == 0
     point = result["variants"]["cross+cells 2 blocks"]["val"][0]
     assert point["step"] == 2 and "task_acc" not in point
-    result = follow_bench.measure(_args("--task", "match", "--episodes", "2", "--steps", "2", "--val-points", "1",
-                                        "--variants", "divided+cells 2 blocks", "--demo-task-weight", "1"))  # fmt: skip
+    result = follow_bench.measure(
+        _args(
+            "--task",
+            "match",
+            "--episodes",
+            "2",
+            "--steps",
+            "2",
+            "--val-points",
+            "1",
+            "--variants",
+            "divided+cells 2 blocks",
+            "--demo-task-weight",
+            "1",
+        )
+    )
     assert result["demo_task_weight"] == 1.0
     assert 0 <= result["variants"]["divided+cells 2 blocks"]["val"][0]["task_acc"] <= 1

@@ -42,8 +42,25 @@ def test_grasp_is_the_first_closed_waypoint_and_release_the_next_open_one():
 def store(tmp_path_factory):
     root = tmp_path_factory.mktemp("store")
     for robot, n in (("sawyer", "2"), ("panda", "3")):
-        assert main(["collect", "--robot", robot, "--tasks", TASK, "--episodes", n, "--seed", "3",
-                     "--data-dir", str(root), "--no-progress"]) == 0  # fmt: skip
+        assert (
+            main(
+                [
+                    "collect",
+                    "--robot",
+                    robot,
+                    "--tasks",
+                    TASK,
+                    "--episodes",
+                    n,
+                    "--seed",
+                    "3",
+                    "--data-dir",
+                    str(root),
+                    "--no-progress",
+                ]
+            )
+            == 0
+        )
     return root
 
 
@@ -51,8 +68,15 @@ class _FixedPlanner:
     """Plans the same waypoints whatever it sees: a policy that ignores both demonstration and scene."""
 
     def plan(self, expert_frames, agent_frame, K, T_world_cam):
-        wps = np.array([[0.0, 0.0, 1.0, 0], [0.05, 0.0, 0.85, 1], [0.05, 0.0, 1.0, 1], [0.1, 0.2, 0.9, 0],
-                        [0.1, 0.2, 1.0, 0]])  # fmt: skip
+        wps = np.array(
+            [
+                [0.0, 0.0, 1.0, 0],
+                [0.05, 0.0, 0.85, 1],
+                [0.05, 0.0, 1.0, 1],
+                [0.1, 0.2, 0.9, 0],
+                [0.1, 0.2, 1.0, 0],
+            ]
+        )
         return type("Plan", (), {"waypoints_world": wps})()
 
     def name_demonstration(self, expert_frames):
@@ -74,8 +98,9 @@ def test_a_plan_that_ignores_the_scene_has_zero_scene_dependence(store, monkeypa
 def test_the_shipped_policy_is_measured_on_plain_and_mirrored_demonstrations(store):
     policy = str(SHIPPED_POLICY_DIR / "pick-place-cpu.pt")
     plain = plan_bench.measure(_args("--checkpoint", policy, "--data-dir", str(store), "--tasks", TASK))
-    mirrored = plan_bench.measure(_args("--checkpoint", policy, "--data-dir", str(store), "--tasks", TASK,
-                                        "--mirror"))  # fmt: skip
+    mirrored = plan_bench.measure(
+        _args("--checkpoint", policy, "--data-dir", str(store), "--tasks", TASK, "--mirror")
+    )
     for result in (plain, mirrored):
         row = result["tasks"][TASK]
         assert row["scenes"] == 3 and np.isfinite(row["grasp_err_m"]) and row["scene_dependence"] is not None
@@ -87,5 +112,13 @@ def test_the_shipped_policy_is_measured_on_plain_and_mirrored_demonstrations(sto
 
 def test_missing_episodes_are_a_clear_error(tmp_path):
     with pytest.raises(SystemExit, match="needs stored agent and expert episodes"):
-        plan_bench.measure(_args("--checkpoint", str(SHIPPED_POLICY_DIR / "pick-place-cpu.pt"),
-                                 "--data-dir", str(tmp_path), "--tasks", TASK))  # fmt: skip
+        plan_bench.measure(
+            _args(
+                "--checkpoint",
+                str(SHIPPED_POLICY_DIR / "pick-place-cpu.pt"),
+                "--data-dir",
+                str(tmp_path),
+                "--tasks",
+                TASK,
+            )
+        )

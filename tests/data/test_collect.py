@@ -170,8 +170,21 @@ def test_hand_collects_human_demonstrations(tmp_path):
 def test_panda_as_expert_beside_panda_as_agent(tmp_path, capsys):
     from studio.cli import main
 
-    argv = ["collect", "--robot", "panda", "--tasks", TASK, "--episodes", "1", "--image-size", "48", "64",
-            "--data-dir", str(tmp_path), "--no-progress"]  # fmt: skip
+    argv = [
+        "collect",
+        "--robot",
+        "panda",
+        "--tasks",
+        TASK,
+        "--episodes",
+        "1",
+        "--image-size",
+        "48",
+        "64",
+        "--data-dir",
+        str(tmp_path),
+        "--no-progress",
+    ]
     assert main([*argv, "--role", "expert"]) == 0
     assert main(argv) == 0
     assert main([*argv, "--role", "expert"]) == 0  # already there

@@ -5,8 +5,14 @@ import pytest
 
 from studio.data.drafts import DraftError, RecordingDrafts
 
-HEADER = {"scene": "push", "robot": "sawyer", "task": "push/red-forward", "seed": 1, "control_dt": 0.01,
-          "role": "expert"}  # fmt: skip
+HEADER = {
+    "scene": "push",
+    "robot": "sawyer",
+    "task": "push/red-forward",
+    "seed": 1,
+    "control_dt": 0.01,
+    "role": "expert",
+}
 
 
 def chunk(first: int, n: int, width: int = 4):

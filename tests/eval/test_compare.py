@@ -33,20 +33,36 @@ TASK = "pick_place/bar->blue"
 
 
 def _row(index: int, a: bool, b: bool, task: str = TASK) -> CompareRow:
-    return CompareRow(task, index, 100 + index, f"demo{index}", Outcome(f"ra{index}", a, None if a else "grasp"),
-                      Outcome(f"rb{index}", b, None if b else "reach"))  # fmt: skip
+    return CompareRow(
+        task,
+        index,
+        100 + index,
+        f"demo{index}",
+        Outcome(f"ra{index}", a, None if a else "grasp"),
+        Outcome(f"rb{index}", b, None if b else "reach"),
+    )
 
 
 # ---------------------------------------------------------------------------------------------- the table
 def test_the_difference_column_says_which_side_succeeded():
-    assert [_row(0, True, False).difference, _row(1, False, True).difference, _row(2, True, True).difference,
-            _row(3, False, False).difference] == ["A only", "B only", "both", "neither"]  # fmt: skip
+    assert [
+        _row(0, True, False).difference,
+        _row(1, False, True).difference,
+        _row(2, True, True).difference,
+        _row(3, False, False).difference,
+    ] == ["A only", "B only", "both", "neither"]
     assert _row(0, True, False).a.mark == "✔" and _row(0, True, False).b.mark == "✘ reach"
 
 
 def test_differing_rows_come_first_then_by_task_and_index():
-    rows = [_row(0, True, True), _row(1, False, True), _row(2, False, False), _row(3, True, False),
-            _row(4, False, True, task="pick_place/bar->yellow"), _row(5, True, False)]  # fmt: skip
+    rows = [
+        _row(0, True, True),
+        _row(1, False, True),
+        _row(2, False, False),
+        _row(3, True, False),
+        _row(4, False, True, task="pick_place/bar->yellow"),
+        _row(5, True, False),
+    ]
     ordered = [(r.task.split(">")[1], r.index, r.difference) for r in order_rows(rows)]
     assert ordered == [
         ("blue", 3, "A only"),
@@ -61,8 +77,17 @@ def test_differing_rows_come_first_then_by_task_and_index():
 def test_totals_and_markdown():
     rows = order_rows([_row(0, True, True), _row(1, False, True), _row(2, True, False), _row(3, True, False)])
     t = totals(rows)
-    assert t == {"episodes": 4, "a_successes": 3, "b_successes": 2, "a_success": 0.75, "b_success": 0.5,
-                 "a_only": 2, "b_only": 1, "both": 1, "neither": 0}  # fmt: skip
+    assert t == {
+        "episodes": 4,
+        "a_successes": 3,
+        "b_successes": 2,
+        "a_success": 0.75,
+        "b_success": 0.5,
+        "a_only": 2,
+        "b_only": 1,
+        "both": 1,
+        "neither": 0,
+    }
     text = render_markdown(rows, "osvi|wm", "ablation")
     lines = text.splitlines()
     assert lines[0] == "| task | # | seed | demonstration | A: osvi\\|wm | B: ablation | difference |"
@@ -74,11 +99,24 @@ def test_totals_and_markdown():
 
 def test_stored_evaluations_pair_on_task_seed_and_demonstration():
     def rec(rid, eval_id, seed, demo, success, ck="run/best"):
-        return RolloutRecord(id=rid, task=TASK, success=success, checkpoint_id=ck, expert_episode_id=demo, seed=seed,
-                             failure_stage=None if success else "grasp", eval_id=eval_id, extra={"index": seed})  # fmt: skip
+        return RolloutRecord(
+            id=rid,
+            task=TASK,
+            success=success,
+            checkpoint_id=ck,
+            expert_episode_id=demo,
+            seed=seed,
+            failure_stage=None if success else "grasp",
+            eval_id=eval_id,
+            extra={"index": seed},
+        )
 
     a = [rec("a1", "e1", 1, "d1", True), rec("a2", "e1", 2, "d2", True), rec("a3", "e1", 3, "d3", False)]
-    b = [rec("b1", "e2", 1, "d1", False, None), rec("b2", "e2", 2, "dX", True, None), rec("b3", "e2", 3, "d3", False, None)]  # fmt: skip
+    b = [
+        rec("b1", "e2", 1, "d1", False, None),
+        rec("b2", "e2", 2, "dX", True, None),
+        rec("b3", "e2", 3, "d3", False, None),
+    ]
     rows = order_rows(pair_rollouts(a, b))
     assert [(r.seed, r.a.rollout_id, r.b.rollout_id, r.difference) for r in rows] == [
         (1, "a1", "b1", "A only"),
@@ -98,8 +136,17 @@ def test_stored_evaluations_pair_on_task_seed_and_demonstration():
 @pytest.fixture(scope="module")
 def store_root(tmp_path_factory):
     root = tmp_path_factory.mktemp("compare") / "data"
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=[TASK], episodes=3, data_dir=str(root),
-                          progress=False, image_size=(120, 160)))  # fmt: skip
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=[TASK],
+            episodes=3,
+            data_dir=str(root),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
     return root
 
 
@@ -159,8 +206,16 @@ def test_a_and_b_roll_out_the_same_episodes_and_every_rollout_is_stored(store_ro
 def test_a_stopped_comparison_says_so_and_its_rollouts_are_marked_incomplete(store_root):
     seen = []
     with pytest.raises(InterruptedError, match="stopped after 2 of 4 rollouts"):
-        compare("oracle", "oracle", [TASK], 2, 9, data_dir=store_root,
-                on_episode=lambda *a: seen.append(a), should_stop=lambda: len(seen) > 0)  # fmt: skip
+        compare(
+            "oracle",
+            "oracle",
+            [TASK],
+            2,
+            9,
+            data_dir=store_root,
+            on_episode=lambda *a: seen.append(a),
+            should_stop=lambda: len(seen) > 0,
+        )
     with EpisodeStore(store_root) as store:
         stopped = [e for e in stored_evaluations(store.catalog) if not e.complete]
     assert sorted(e.rollouts for e in stopped) == [1, 1] and all(e.planned == 2 for e in stopped)
@@ -217,8 +272,25 @@ def test_bad_input_exits_2_with_one_line_before_any_rollout(argv, says, store_ro
 
 def test_the_command_writes_the_table_and_its_json(store_root, tmp_path, capsys):
     out = tmp_path / "cmp.md"
-    assert _cli("--a", "oracle", "--b", "oracle", "--label-b", "oracle again", "--tasks", TASK, "--episodes", "1",
-                "--data-dir", str(store_root), "--out", str(out)) == 0  # fmt: skip
+    assert (
+        _cli(
+            "--a",
+            "oracle",
+            "--b",
+            "oracle",
+            "--label-b",
+            "oracle again",
+            "--tasks",
+            TASK,
+            "--episodes",
+            "1",
+            "--data-dir",
+            str(store_root),
+            "--out",
+            str(out),
+        )
+        == 0
+    )
     text = out.read_text()
     assert "| A: oracle | B: oracle again | difference |" in text and "| ✔ | ✔ | both |" in text
     assert text in capsys.readouterr().out

@@ -73,8 +73,9 @@ def test_the_panda_imitates_hand_demonstrations(tmp_path):
 
     task = "pick_place/bar->blue"
     for robot in ("hand", "sawyer"):
-        cfg = CollectConfig(robot=robot, tasks=[task], episodes=1, image_size=(60, 80), data_dir=str(tmp_path),
-                            progress=False)  # fmt: skip
+        cfg = CollectConfig(
+            robot=robot, tasks=[task], episodes=1, image_size=(60, 80), data_dir=str(tmp_path), progress=False
+        )
         assert collect(cfg).made == 1
     report = evaluate(
         "oracle", [task], 2, seed=0, data_dir=tmp_path, progress=False, expert_embodiments=["human"]

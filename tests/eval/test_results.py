@@ -10,24 +10,39 @@ from studio.data.splits import load_split
 from studio.eval.evaluation import RolloutSummary, summarise
 from studio.eval.results import budget_rows, json_rows, parse_policy, render_markdown
 
-MW_TASKS = ("metaworld/button-press-v3", "metaworld/pick-place-wall-v3", "metaworld/window-open-v3",
-            "metaworld/door-unlock-v3")  # fmt: skip
+MW_TASKS = (
+    "metaworld/button-press-v3",
+    "metaworld/pick-place-wall-v3",
+    "metaworld/window-open-v3",
+    "metaworld/door-unlock-v3",
+)
 
 
 def _report(rates: dict[str, float], n: int = 10) -> dict:
     tasks = {
         t: {"success": r, "reached": r, "grasped": r, "placed": r, "rollouts": n} for t, r in rates.items()
     }
-    return {"tasks": tasks, "success": sum(rates.values()) / len(rates), "rollouts": n * len(rates),
-            "mean_planning_ms": 80.0, "wall_s": 120.0}  # fmt: skip
+    return {
+        "tasks": tasks,
+        "success": sum(rates.values()) / len(rates),
+        "rollouts": n * len(rates),
+        "mean_planning_ms": 80.0,
+        "wall_s": 120.0,
+    }
 
 
 def test_metaworld_table_has_easy_hard_and_all_columns():
     groups = load_split("metaworld").test_groups
-    rates = {"metaworld/button-press-v3": 0.9, "metaworld/pick-place-wall-v3": 0.5,
-             "metaworld/window-open-v3": 0.2, "metaworld/door-unlock-v3": 0.0}  # fmt: skip
-    table = render_markdown([("osvi-wm", 0, _report(rates)), ("osvi-wm", 2, _report(rates | {"metaworld/door-unlock-v3": 0.4}))],
-                            groups)  # fmt: skip
+    rates = {
+        "metaworld/button-press-v3": 0.9,
+        "metaworld/pick-place-wall-v3": 0.5,
+        "metaworld/window-open-v3": 0.2,
+        "metaworld/door-unlock-v3": 0.0,
+    }
+    table = render_markdown(
+        [("osvi-wm", 0, _report(rates)), ("osvi-wm", 2, _report(rates | {"metaworld/door-unlock-v3": 0.4}))],
+        groups,
+    )
     head, _, row0, row2 = table.strip().splitlines()
     cells = [c.strip() for c in head.strip("|").split("|")]
     assert cells[6:9] == ["easy", "hard", "all"]
@@ -60,11 +75,25 @@ def _evaluated(outcomes_by_task: dict[str, list[list[bool]]], replan: int) -> di
     rows = []
     for task, rollouts in outcomes_by_task.items():
         for i, outcomes in enumerate(rollouts):
-            rows.append(RolloutSummary(
-                rollout_id=f"{task}-{i}", task=task, index=i, seed=i, expert_episode_id="e", success=outcomes[-1],
-                reached=True, grasped=outcomes[-1], placed=outcomes[-1], failure_stage=None if outcomes[-1] else "grasp",
-                replans=len(outcomes) - 1, planning_time_s=0.1, duration_s=1.0, attempt_stages=_attempts(outcomes),
-                attempt_planning_s=[0.1] * len(outcomes)))  # fmt: skip
+            rows.append(
+                RolloutSummary(
+                    rollout_id=f"{task}-{i}",
+                    task=task,
+                    index=i,
+                    seed=i,
+                    expert_episode_id="e",
+                    success=outcomes[-1],
+                    reached=True,
+                    grasped=outcomes[-1],
+                    placed=outcomes[-1],
+                    failure_stage=None if outcomes[-1] else "grasp",
+                    replans=len(outcomes) - 1,
+                    planning_time_s=0.1,
+                    duration_s=1.0,
+                    attempt_stages=_attempts(outcomes),
+                    attempt_planning_s=[0.1] * len(outcomes),
+                )
+            )
     return {**summarise(rows), "replan": replan, "wall_s": 60.0, "rows": [r.__dict__ for r in rows]}
 
 

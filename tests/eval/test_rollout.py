@@ -79,8 +79,10 @@ def test_replanning_stays_in_the_same_episode(env):
     out = run_rollout(env, planner, frames, "pick_place/bar->blue", 5, replans=2)
     assert out.success and out.replans == 1
     # The breakdown after each attempt: the first missed everything, the second placed the bar.
-    assert out.attempt_stages == [{"reached": False, "grasped": False, "placed": False},
-                                  {"reached": True, "grasped": True, "placed": True}]  # fmt: skip
+    assert out.attempt_stages == [
+        {"reached": False, "grasped": False, "placed": False},
+        {"reached": True, "grasped": True, "placed": True},
+    ]
     # The second plan was made mid-episode: the tick counter kept running, no reset in between.
     assert planner.seen_steps[0] == 0 and planner.seen_steps[1] > 0
     assert out.plans[1].start_tick == planner.seen_steps[1]
@@ -178,8 +180,19 @@ def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_pa
     zero = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=0, data_dir=root, progress=False)
     assert max(r["replans"] for r in two["rows"]) == 2  # the untrained policy fails and re-plans
     derived = with_budget(two, 0)
-    fields = ("task", "index", "seed", "expert_episode_id", "success", "reached", "grasped", "placed",
-              "failure_stage", "replans", "attempt_stages")  # fmt: skip
+    fields = (
+        "task",
+        "index",
+        "seed",
+        "expert_episode_id",
+        "success",
+        "reached",
+        "grasped",
+        "placed",
+        "failure_stage",
+        "replans",
+        "attempt_stages",
+    )
     assert [{k: r[k] for k in fields} for r in derived["rows"]] == [
         {k: r[k] for k in fields} for r in zero["rows"]
     ]
@@ -209,8 +222,27 @@ def test_results_command_writes_a_table_of_held_out_success(tmp_path, capsys):
         )
     )
     out = tmp_path / "results.md"
-    assert main(["results", "--policy", "oracle=oracle", "--episodes", "1", "--replan", "0", "1", "--workers", "1",
-                 "--data-dir", str(root), "--out", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "results",
+                "--policy",
+                "oracle=oracle",
+                "--episodes",
+                "1",
+                "--replan",
+                "0",
+                "1",
+                "--workers",
+                "1",
+                "--data-dir",
+                str(root),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = out.read_text()
     assert "pick_place/bar->blue" in text and "pick_place/bar->yellow" in text
     rows = [line for line in text.splitlines() if line.startswith("| oracle")]
@@ -241,8 +273,17 @@ def test_an_evaluation_without_grasp_correction_says_so_and_grasps_as_planned(tm
     """The same scenes and demonstrations with the correction off: recorded in the report and on every rollout,
     and no rollout looks through the wrist camera."""
     root = tmp_path / "data"
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["test"], episodes=1, data_dir=str(root),
-                          progress=False, image_size=(120, 160)))  # fmt: skip
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=["test"],
+            episodes=1,
+            data_dir=str(root),
+            progress=False,
+            image_size=(120, 160),
+        )
+    )
     tasks = ["pick_place/bar->blue"]
     report = evaluate("oracle", tasks, 1, 0, data_dir=str(root), progress=False, grasp="off")
     assert report["grasp_correction"] == "off"

@@ -93,8 +93,16 @@ def test_expert_hflip_mirrors_the_expert_video_alone():
     )
     expert = torch.randint(0, 256, (2, 2, 3, 24, 32), dtype=torch.uint8)
     agent = torch.randint(0, 256, (2, 3, 3, 24, 32), dtype=torch.uint8)
-    out = augment_batch(expert, agent, K.float()[None].repeat(2, 1, 1), torch.arange(2), torch.arange(2),
-                        torch.arange(2), cfg, torch.Generator().manual_seed(0))  # fmt: skip
+    out = augment_batch(
+        expert,
+        agent,
+        K.float()[None].repeat(2, 1, 1),
+        torch.arange(2),
+        torch.arange(2),
+        torch.arange(2),
+        cfg,
+        torch.Generator().manual_seed(0),
+    )
     assert torch.allclose(out.expert_frames, expert.flip(-1).float() / 255, atol=1e-5)
     assert torch.allclose(out.agent_frames, agent.float() / 255, atol=1e-6)  # the agent keeps its layout
     assert torch.allclose(out.K, K.float()[None].repeat(2, 1, 1))  # and its labels
@@ -137,8 +145,16 @@ def _uniform_pairs(rgb: list[int], u: int, **settings) -> tuple[torch.Tensor, to
     )
     scene = torch.tensor(rgb, dtype=torch.uint8).view(1, 1, 3, 1, 1).repeat(1, 1, 1, 8, 8)
     ids = torch.arange(u).repeat_interleave(2)
-    out = augment_batch(scene.repeat(u, 2, 1, 1, 1), scene.repeat(2 * u, 3, 1, 1, 1), K.float()[None].repeat(2 * u, 1, 1),
-                        ids, torch.arange(u), ids, cfg, torch.Generator().manual_seed(0))  # fmt: skip
+    out = augment_batch(
+        scene.repeat(u, 2, 1, 1, 1),
+        scene.repeat(2 * u, 3, 1, 1, 1),
+        K.float()[None].repeat(2 * u, 1, 1),
+        ids,
+        torch.arange(u),
+        ids,
+        cfg,
+        torch.Generator().manual_seed(0),
+    )
     return out.expert_frames.mean(dim=(-1, -2)), out.agent_frames.mean(dim=(-1, -2)), ids
 
 

@@ -15,9 +15,15 @@ from studio.model.checkpoint_info import TENSOR, checkpoint_scene, read_checkpoi
 
 def test_reads_what_torch_load_reads_except_the_tensors(tmp_path):
     state = collections.OrderedDict(w=torch.ones(3, 2), b=torch.zeros(2, dtype=torch.float16))
-    ckpt = {"format": "osvi-wm-checkpoint/1", "tasks": ["push/red-forward", "push/blue-forward"], "step": 7,
-            "config": {"model": {"image_size": [72, 96]}}, "model": state, "torch_version": torch.__version__,
-            "best_val_loss": 0.25}  # fmt: skip
+    ckpt = {
+        "format": "osvi-wm-checkpoint/1",
+        "tasks": ["push/red-forward", "push/blue-forward"],
+        "step": 7,
+        "config": {"model": {"image_size": [72, 96]}},
+        "model": state,
+        "torch_version": torch.__version__,
+        "best_val_loss": 0.25,
+    }
     path = tmp_path / "ck.pt"
     torch.save(ckpt, path)
     info = read_checkpoint_info(path)

@@ -70,8 +70,17 @@ def test_the_scene_defaults_to_the_one_the_model_was_trained_on(tmp_path, monkey
     monkeypatch.setattr(train_command, "open_splits", open_splits)
     parser = argparse.ArgumentParser()
     decoder_command.add_arguments(parser)
-    common = ["--model", str(tmp_path / "run" / "last.pt"), "--data", "store", "--steps", "1",
-              "--batch-size", "2", "--no-progress"]  # fmt: skip
+    common = [
+        "--model",
+        str(tmp_path / "run" / "last.pt"),
+        "--data",
+        "store",
+        "--steps",
+        "1",
+        "--batch-size",
+        "2",
+        "--no-progress",
+    ]
     assert decoder_command.run(parser.parse_args([*common, "--out", str(tmp_path / "dec")])) == 0
     assert asked == ["synthetic"]
     assert (tmp_path / "dec" / "last.pt").is_file()

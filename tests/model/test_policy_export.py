@@ -22,8 +22,13 @@ torch.set_num_threads(1)
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
-    train(tiny_run_config(max_steps=3, batch_size=4, val_every=100), SyntheticPairs(), None, out,
-          show_progress=False)  # fmt: skip
+    train(
+        tiny_run_config(max_steps=3, batch_size=4, val_every=100),
+        SyntheticPairs(),
+        None,
+        out,
+        show_progress=False,
+    )
     cfg = DecoderConfig(
         base_channels=16, stages=3, batch_size=4, steps=2, val_every=100, log_every=1, num_workers=0
     )
@@ -56,8 +61,18 @@ def test_exported_policy_plans_like_the_checkpoint_at_a_fraction_of_the_size(tra
 def test_export_command_reports_bad_input(trained, tmp_path, capsys):
     assert main(["export-policy", str(tmp_path / "nope.pt"), str(tmp_path / "p.pt")]) == 2
     assert "nope.pt" in capsys.readouterr().err
-    assert main(["export-policy", str(trained / "last.pt"), str(tmp_path / "p.pt"), "--decoder",
-                 str(trained / "last.pt")]) == 2  # fmt: skip
+    assert (
+        main(
+            [
+                "export-policy",
+                str(trained / "last.pt"),
+                str(tmp_path / "p.pt"),
+                "--decoder",
+                str(trained / "last.pt"),
+            ]
+        )
+        == 2
+    )
     assert "not a latent-decoder checkpoint" in capsys.readouterr().err
     assert main(["export-policy", str(trained / "last.pt"), str(tmp_path / "q.pt")]) == 0
     assert "policy_bytes=" in capsys.readouterr().out
@@ -77,8 +92,17 @@ def test_the_gate_percentile_is_read_off_the_training_tasks_stored_demonstration
     named = tmp_path / "named.pt"
     torch.save(ckpt, named)
     data = tmp_path / "data"
-    collect(CollectConfig(scene="pick_place", robot="sawyer", tasks=["pick_place/bar->blue", "pick_place/bar->red"],
-                          episodes=2, data_dir=str(data), progress=False, image_size=(48, 64)))  # fmt: skip
+    collect(
+        CollectConfig(
+            scene="pick_place",
+            robot="sawyer",
+            tasks=["pick_place/bar->blue", "pick_place/bar->red"],
+            episodes=2,
+            data_dir=str(data),
+            progress=False,
+            image_size=(48, 64),
+        )
+    )
     planner = Planner.load(named)
     with EpisodeStore(data) as store:
         training = store.episodes(role="expert", task="pick_place/bar->blue")

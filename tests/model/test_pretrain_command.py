@@ -52,8 +52,23 @@ def test_pretrains_through_the_command(tmp_path, monkeypatch, capsys):
         return SyntheticPairs(), SyntheticPairs(split="val")
 
     monkeypatch.setattr(pretrain_command, "open_frames", fake_open)
-    args = _args("--data", "store", "--out", str(tmp_path), "--scene", "metaworld", "--tasks", "all",
-                 "--steps", "2", "--batch-size", "2", "--no-progress", "--set", *TINY)  # fmt: skip
+    args = _args(
+        "--data",
+        "store",
+        "--out",
+        str(tmp_path),
+        "--scene",
+        "metaworld",
+        "--tasks",
+        "all",
+        "--steps",
+        "2",
+        "--batch-size",
+        "2",
+        "--no-progress",
+        "--set",
+        *TINY,
+    )
     assert pretrain_command.run(args) == 0
     assert opened == [("store", (48, 64), "metaworld", 50)]
     assert "finished at step 2/2" in capsys.readouterr().out

@@ -67,8 +67,24 @@ def demos_by(tmp_path_factory):
         if tuple(args) not in collected:
             root = tmp_path_factory.mktemp("store")
             tasks = list(load_split("pick_place").test)
-            assert main(["collect", *args, "--tasks", *tasks, "--episodes", "1", "--seed", "5",
-                         "--data-dir", str(root), "--no-progress"]) == 0  # fmt: skip
+            assert (
+                main(
+                    [
+                        "collect",
+                        *args,
+                        "--tasks",
+                        *tasks,
+                        "--episodes",
+                        "1",
+                        "--seed",
+                        "5",
+                        "--data-dir",
+                        str(root),
+                        "--no-progress",
+                    ]
+                )
+                == 0
+            )
             with EpisodeStore(root) as store:
                 collected[tuple(args)] = {t: store.load_frames(store.episodes(task=t)[0].id) for t in tasks}
         return collected[tuple(args)]
@@ -140,8 +156,26 @@ def test_the_shipped_push_policy_pushes_the_demonstrated_box_backward(policy, tm
 
     (task,) = load_split("push").test
     assert task == "push/blue-backward"
-    assert main(["collect", "--scene", "push", *demonstrator_args(policy), "--tasks", task, "--episodes", "1",
-                 "--seed", "5", "--data-dir", str(tmp_path), "--no-progress"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "collect",
+                "--scene",
+                "push",
+                *demonstrator_args(policy),
+                "--tasks",
+                task,
+                "--episodes",
+                "1",
+                "--seed",
+                "5",
+                "--data-dir",
+                str(tmp_path),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     with EpisodeStore(tmp_path) as store:
         frames = store.load_frames(store.episodes(task=task)[0].id)
     planner = Planner.load(policy)
@@ -175,8 +209,27 @@ def test_the_shipped_metaworld_policy_presses_the_held_out_button(policy, tmp_pa
     assert task in load_split("metaworld").test and task not in Planner.load(policy).tasks, (
         "never trained on it"
     )
-    assert main(["collect", "--scene", "metaworld", "--robot", "sawyer", "--tasks", task, "--episodes", "1",
-                 "--seed", "5", "--data-dir", str(tmp_path), "--no-progress"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "collect",
+                "--scene",
+                "metaworld",
+                "--robot",
+                "sawyer",
+                "--tasks",
+                task,
+                "--episodes",
+                "1",
+                "--seed",
+                "5",
+                "--data-dir",
+                str(tmp_path),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     report = evaluate(str(policy), [task], 10, 300, replan=0, data_dir=tmp_path, progress=False)
     outcomes = [row["success"] for row in report["rows"]]
     assert len(outcomes) == 10 and sum(outcomes) >= MIN_BUTTON_PRESSES, outcomes

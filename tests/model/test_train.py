@@ -176,8 +176,14 @@ def test_a_run_can_start_from_another_checkpoints_weights(tmp_path):
     train(first, SyntheticPairs(), None, tmp_path / "a", show_progress=False)
     trained = load_checkpoint(tmp_path / "a" / "last.pt")["model"]
     second = first.with_overrides(["train.max_steps=1", "train.lr_max=1e-12", "train.lr_final=1e-12"])
-    result = train(second, SyntheticPairs(seed=5), None, tmp_path / "b", show_progress=False,
-                   init=tmp_path / "a" / "last.pt")  # fmt: skip
+    result = train(
+        second,
+        SyntheticPairs(seed=5),
+        None,
+        tmp_path / "b",
+        show_progress=False,
+        init=tmp_path / "a" / "last.pt",
+    )
     assert result.step == 1  # a new run: its own step count and schedule
     after = load_checkpoint(tmp_path / "b" / "last.pt")["model"]
     weights = [k for k in trained if trained[k].is_floating_point() and "running" not in k]  # BN stats move
@@ -317,12 +323,24 @@ def test_the_cpu_architecture_learns_to_follow_the_demonstration():
         vals = []
         for seed in (0, 1):
             data = SyntheticPairs(n_tasks=4, episodes_per_task=3)
-            run = tiny_run_config(max_steps=300, lr_max=3e-3, val_every=300, val_batches=0, seed=seed,
-                                  demo_task_weight=1.0, **NO_AUG)  # fmt: skip
+            run = tiny_run_config(
+                max_steps=300,
+                lr_max=3e-3,
+                val_every=300,
+                val_batches=0,
+                seed=seed,
+                demo_task_weight=1.0,
+                **NO_AUG,
+            )
             run.model.action_attention, run.model.wm_tokens, run.model.wm_residual = "divided", "cells", False
             with tempfile.TemporaryDirectory() as d:
-                train(run, data, SyntheticPairs(n_tasks=4, episodes_per_task=3, split="val"), d,
-                      show_progress=False)  # fmt: skip
+                train(
+                    run,
+                    data,
+                    SyntheticPairs(n_tasks=4, episodes_per_task=3, split="val"),
+                    d,
+                    show_progress=False,
+                )
                 (val,) = [r for r in records(Path(d)) if r.get("split") == "val"]
             vals.append(val)
             if val["val_demo_effect_m"] > 0.1 and val["val_final_err_m"] < 0.1:
@@ -393,14 +411,18 @@ def test_a_checkpoint_without_the_task_head_resumes_and_inits_a_run_that_adds_on
     torch.save(ckpt, ckpt_path)
     longer = first.with_overrides(["train.max_steps=3"])
     assert train(longer, SyntheticPairs(), None, tmp_path / "a", show_progress=False).step == 3  # resumes
-    with_head = first.with_overrides(["train.max_steps=1", "train.demo_task_weight=1.0", "train.lr_max=1e-12",
-                                      "train.lr_final=1e-12"])  # fmt: skip
+    with_head = first.with_overrides(
+        ["train.max_steps=1", "train.demo_task_weight=1.0", "train.lr_max=1e-12", "train.lr_final=1e-12"]
+    )
     train(with_head, SyntheticPairs(), None, tmp_path / "b", show_progress=False, init=ckpt_path)
     after = load_checkpoint(tmp_path / "b" / "last.pt")
     assert after["config"]["model"]["demo_task_classes"] == len(SyntheticPairs().tasks)
     trained = load_checkpoint(ckpt_path)["model"]
-    assert all(torch.allclose(trained[k].float(), after["model"][k].float(), atol=1e-6)
-               for k in trained if trained[k].is_floating_point() and "running" not in k)  # fmt: skip
+    assert all(
+        torch.allclose(trained[k].float(), after["model"][k].float(), atol=1e-6)
+        for k in trained
+        if trained[k].is_floating_point() and "running" not in k
+    )
 
 
 @pytest.mark.slow
@@ -419,10 +441,17 @@ def test_parts_labels_give_the_head_one_group_per_part_and_replace_a_task_head_o
     whole = tiny_run_config(max_steps=2, batch_size=4, val_every=100, demo_task_weight=1.0)
     train(whole, push_pairs(), None, tmp_path / "task", show_progress=False)
     assert load_checkpoint(tmp_path / "task" / "last.pt")["config"]["model"]["demo_task_classes"] == 3
-    parts = whole.with_overrides(["train.demo_task_labels=parts", "train.max_steps=3", "train.val_every=3",
-                                  "train.val_batches=1"])  # fmt: skip
-    train(parts, push_pairs(), push_pairs("val"), tmp_path / "parts", show_progress=False,
-          init=tmp_path / "task" / "last.pt")  # fmt: skip
+    parts = whole.with_overrides(
+        ["train.demo_task_labels=parts", "train.max_steps=3", "train.val_every=3", "train.val_batches=1"]
+    )
+    train(
+        parts,
+        push_pairs(),
+        push_pairs("val"),
+        tmp_path / "parts",
+        show_progress=False,
+        init=tmp_path / "task" / "last.pt",
+    )
     ckpt = load_checkpoint(tmp_path / "parts" / "last.pt")
     model_cfg = ckpt["config"]["model"]
     assert model_cfg["demo_task_classes"] == 4 and list(model_cfg["demo_task_groups"]) == [2, 2]
@@ -448,8 +477,11 @@ def test_a_no_world_model_checkpoint_grows_into_the_full_model_on_init(tmp_path)
     assert after["config"]["model"]["world_model"] is True
     assert any(k.startswith("world_model.") for k in after["model"])  # 𝒲 exists, untrained
     trained = load_checkpoint(ckpt_path)["model"]
-    assert all(torch.allclose(trained[k].float(), after["model"][k].float(), atol=1e-6)
-               for k in trained if trained[k].is_floating_point() and "running" not in k)  # fmt: skip
+    assert all(
+        torch.allclose(trained[k].float(), after["model"][k].float(), atol=1e-6)
+        for k in trained
+        if trained[k].is_floating_point() and "running" not in k
+    )
     # The other way round drops trained weights, so it stays an error.
     with pytest.raises(CheckpointMismatch, match="world_model"):
         train(
@@ -473,8 +505,14 @@ def test_frozen_parts_keep_their_weights_and_batchnorm_statistics_while_the_rest
         ["train.freeze=encoder,action_model"]
     )
     assert grow.train.freeze == ("encoder", "action_model")
-    train(grow, SyntheticPairs(), SyntheticPairs(split="val"), tmp_path / "b", show_progress=False,
-          init=tmp_path / "a" / "last.pt")  # fmt: skip
+    train(
+        grow,
+        SyntheticPairs(),
+        SyntheticPairs(split="val"),
+        tmp_path / "b",
+        show_progress=False,
+        init=tmp_path / "a" / "last.pt",
+    )
     after = load_checkpoint(tmp_path / "b" / "last.pt")["model"]
     frozen = [k for k in start if k.startswith(("encoder.", "action_model."))]
     assert any(

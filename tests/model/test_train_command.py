@@ -81,8 +81,20 @@ def test_trains_and_resumes_through_the_command(tmp_path, monkeypatch, capsys):
     assert train_command.run(args) == 0  # a longer run continues from step 2 on the lengthened schedule
     assert load_checkpoint(tmp_path / "last.pt")["step"] == 3
     capsys.readouterr()
-    args = _args("--data", "store", "--out", str(tmp_path), "--steps", "4", "--seed", "3", "--no-progress",
-                 "--set", *TINY, "train.lr_max=0.5")  # fmt: skip
+    args = _args(
+        "--data",
+        "store",
+        "--out",
+        str(tmp_path),
+        "--steps",
+        "4",
+        "--seed",
+        "3",
+        "--no-progress",
+        "--set",
+        *TINY,
+        "train.lr_max=0.5",
+    )
     assert train_command.run(args) == 2  # another optimiser setting: refused, not silently mixed
     assert "lr_max" in capsys.readouterr().err
 

@@ -76,11 +76,15 @@ def test_a_plan_that_closes_after_the_object_still_picks_and_places(env_factory)
     scripted = expert_waypoints(env)
     grasp, place = scripted[0, :3], scripted[3, :3]
     up = np.array([0.0, 0.0, 1.0])
-    shifted = np.array([
-        [*(grasp + 0.2 * up), 0], [*grasp, 0],  # above the cube and at it, still open
-        [*(place + 0.1 * up), 1], [*place, 1],  # carried to the zone and lowered, closed
-        [*(place + 0.08 * up), 0],  # opened on the way up
-    ])  # fmt: skip
+    shifted = np.array(
+        [
+            [*(grasp + 0.2 * up), 0],
+            [*grasp, 0],  # above the cube and at it, still open
+            [*(place + 0.1 * up), 1],
+            [*place, 1],  # carried to the zone and lowered, closed
+            [*(place + 0.08 * up), 0],  # opened on the way up
+        ]
+    )
     assert WaypointController(env).execute(shifted).success
 
 

@@ -26,6 +26,7 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -205,16 +206,24 @@ class ComparePanel:
         with gui.add_folder("Stored evaluations", expand_by_default=False):
             self.eval_a = gui.add_dropdown("Evaluation A", (NONE,))
             self.eval_b = gui.add_dropdown("Evaluation B", (NONE,))
-            self.stored_button = gui.add_button("Compare stored rollouts", icon="table",
-                                                hint="their shared (task, seed, demonstration) episodes; nothing runs")  # fmt: skip
+            self.stored_button = gui.add_button(
+                "Compare stored rollouts",
+                icon="table",
+                hint="their shared (task, seed, demonstration) episodes; nothing runs",
+            )
         self.totals = gui.add_markdown("")
         self.pick = gui.add_dropdown("Compared seed", (NONE,))
         self.open_button = gui.add_button("Open side by side", icon="timeline")
-        self.shows = gui.add_dropdown("Scene shows", ("A", "B"), initial_value="A",
-                                      hint="whose poses the 3D scene shows; both paths are drawn")  # fmt: skip
+        self.shows = gui.add_dropdown(
+            "Scene shows",
+            ("A", "B"),
+            initial_value="A",
+            hint="whose poses the 3D scene shows; both paths are drawn",
+        )
         self.info = gui.add_markdown("")
-        self.image = gui.add_image(np.full((120, 320, 3), 255, np.uint8), label="Camera: A (left) · B (right)",
-                                   visible=False)  # fmt: skip
+        self.image = gui.add_image(
+            np.full((120, 320, 3), 255, np.uint8), label="Camera: A (left) · B (right)", visible=False
+        )
         self.enlarge = gui.add_button(
             "Enlarge",
             icon="arrows-maximize",
@@ -226,7 +235,7 @@ class ComparePanel:
         self.step_info = gui.add_markdown("")
         with gui.add_folder("Per-seed table"):
             self.table = gui.add_markdown("")
-        self.scene.on_update(lambda _: (self._fill_tasks(), self._fill_checkpoints()))
+        self.scene.on_update(self._on_scene_chosen)
         self.enlarge.on_click(lambda _: tab.run(self.open_enlarged, "enlarging the camera views"))
         self.buttons.on_click(self._on_button)
         self.stored_button.on_click(lambda _: tab.run(self.compare_stored, "comparing stored rollouts"))
@@ -234,6 +243,11 @@ class ComparePanel:
         self.shows.on_update(lambda _: self._show_step(int(self.timeline.slider.value)))
 
     # ------------------------------------------------------------------ choices
+    def _on_scene_chosen(self, event: Any) -> None:
+        """Another scene: its tasks and checkpoints."""
+        self._fill_tasks()
+        self._fill_checkpoints()
+
     def _fill_tasks(self) -> None:
         options = task_choices(self.scene.value)
         if self.tasks.options != options:
@@ -294,10 +308,19 @@ class ComparePanel:
                 )
         for ck in (a, b):
             self.app.runs.register_checkpoint(self.app.store.catalog, ck)  # the stored rollouts refer to it
-        spec = {"a": a.path, "b": b.path, "label_a": a.id, "label_b": b.id,
-                "checkpoint_id_a": None if a.is_oracle else a.id, "checkpoint_id_b": None if b.is_oracle else b.id,
-                "scene": scene, "tasks": self.tasks.value, "episodes": int(self.episodes.value),
-                "seed": int(self.seed.value), "replan": int(self.replans.value)}  # fmt: skip
+        spec = {
+            "a": a.path,
+            "b": b.path,
+            "label_a": a.id,
+            "label_b": b.id,
+            "checkpoint_id_a": None if a.is_oracle else a.id,
+            "checkpoint_id_b": None if b.is_oracle else b.id,
+            "scene": scene,
+            "tasks": self.tasks.value,
+            "episodes": int(self.episodes.value),
+            "seed": int(self.seed.value),
+            "replan": int(self.replans.value),
+        }
         missing = self.tasks_without_demonstrations(scene, task_list(scene, self.tasks.value))
         if missing:
             self.making = ScriptedDemos(spec, (a.id, b.id), missing)
@@ -425,8 +448,16 @@ class ComparePanel:
             if record.path and (Path(record.path) / "plans.npz").is_file():
                 with np.load(Path(record.path) / "plans.npz") as plans:
                     starts = np.asarray(plans["plan_start_ticks"])
-            sides.append(OpenedRollout(name, label, record, EpisodeReplay(store, record.episode_id),
-                               store.load_frames(record.episode_id), starts))  # fmt: skip
+            sides.append(
+                OpenedRollout(
+                    name,
+                    label,
+                    record,
+                    EpisodeReplay(store, record.episode_id),
+                    store.load_frames(record.episode_id),
+                    starts,
+                )
+            )
         a, b = sides
         self.sides = (a, b)
         meta = a.replay.meta
@@ -458,8 +489,12 @@ class ComparePanel:
         a, b = self.sides
         sa, sb = min(step, a.steps - 1), min(step, b.steps - 1)
         da, db = a.describe(step), b.describe(step)
-        self.image.image = filmstrip(np.stack([a.frame_at(sa), b.frame_at(sb)]), cols=2, height=150,
-                                     labels=[f"A: {a.short(step)}", f"B: {b.short(step)}"])  # fmt: skip
+        self.image.image = filmstrip(
+            np.stack([a.frame_at(sa), b.frame_at(sb)]),
+            cols=2,
+            height=150,
+            labels=[f"A: {a.short(step)}", f"B: {b.short(step)}"],
+        )
         if self._enlarged:
             self._enlarged[0].image = self.enlarged_views(step)
         if self.tab.token == self._token:

@@ -181,8 +181,14 @@ class DatasetsPanel:
                 self.c_select = gui.add_button_group("Select tasks", SELECT)
                 self.c_heldout = gui.add_markdown("")
             self.c_episodes = gui.add_number(EPISODES, initial_value=10, min=1, max=MAX_EPISODES, step=1)
-            self.c_seed = gui.add_number("Seed", initial_value=0, min=0, max=MAX_SEED, step=1,
-                                         hint="base seed of the run: the same seed again makes only the missing episodes")  # fmt: skip
+            self.c_seed = gui.add_number(
+                "Seed",
+                initial_value=0,
+                min=0,
+                max=MAX_SEED,
+                step=1,
+                hint="base seed of the run: the same seed again makes only the missing episodes",
+            )
             self.c_start = gui.add_button(START, color="green", icon="player-play")
             self.c_cancel = gui.add_button(CANCEL, icon="player-stop", disabled=True)
             self.c_status = gui.add_markdown("No collection yet.")

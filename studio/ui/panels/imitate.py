@@ -25,6 +25,7 @@ reason, never run.
 from __future__ import annotations
 
 import re
+from typing import Any
 
 import numpy as np
 
@@ -97,15 +98,28 @@ class ImitatePanel:
         first = next(iter(self.labels))
         self.task = gui.add_dropdown("Task", tuple(self.labels), initial_value=first)
         self.demo = gui.add_dropdown("Demonstration", ("(none)",))
-        self.scripted = gui.add_button("Make a scripted demonstration", icon="robot",
-                                       hint="records the scene's scripted Sawyer expert (seed = Seed + 1000)")  # fmt: skip
+        self.scripted = gui.add_button(
+            "Make a scripted demonstration",
+            icon="robot",
+            hint="records the scene's scripted Sawyer expert (seed = Seed + 1000)",
+        )
         self.seed = gui.add_number(
             "Seed", initial_value=0, min=0, step=1, hint="the scene the Panda starts in"
         )
-        self.replans = gui.add_number("Re-plans", initial_value=1, min=0, max=5, step=1,
-                                      hint="re-plans allowed within the episode after a failed attempt")  # fmt: skip
-        self.speed = gui.add_dropdown("Speed", tuple(SPEEDS), initial_value="1× (real time)",
-                                      hint="how fast the rollout runs while you watch it")  # fmt: skip
+        self.replans = gui.add_number(
+            "Re-plans",
+            initial_value=1,
+            min=0,
+            max=5,
+            step=1,
+            hint="re-plans allowed within the episode after a failed attempt",
+        )
+        self.speed = gui.add_dropdown(
+            "Speed",
+            tuple(SPEEDS),
+            initial_value="1× (real time)",
+            hint="how fast the rollout runs while you watch it",
+        )
         self.policy = gui.add_markdown("")
         with gui.add_folder("About this policy", expand_by_default=False):
             self.policy_details = gui.add_markdown("")
@@ -121,14 +135,17 @@ class ImitatePanel:
             visible=False,
             hint="the expert frames, the agent's frame and the latent images, large",
         )
-        self.expert_strip = gui.add_image(np.full((20, 100, 3), 255, np.uint8), label=EXPERT_LABEL,
-                                          visible=False)  # fmt: skip
-        self.agent_image = gui.add_image(np.full((20, 100, 3), 255, np.uint8), label="Agent's first frame",
-                                         visible=False)  # fmt: skip
-        self.latent_strip = gui.add_image(np.full((20, 100, 3), 255, np.uint8),
-                                          label="Predicted latent trajectory (decoded)", visible=False)  # fmt: skip
+        self.expert_strip = gui.add_image(
+            np.full((20, 100, 3), 255, np.uint8), label=EXPERT_LABEL, visible=False
+        )
+        self.agent_image = gui.add_image(
+            np.full((20, 100, 3), 255, np.uint8), label="Agent's first frame", visible=False
+        )
+        self.latent_strip = gui.add_image(
+            np.full((20, 100, 3), 255, np.uint8), label="Predicted latent trajectory (decoded)", visible=False
+        )
         self.latent_note = gui.add_markdown("")
-        self.task.on_update(lambda e: (self._fill_demos(), self._show_policy()))
+        self.task.on_update(self._on_task_chosen)
         self.demo.on_update(lambda e: self._show_policy())  # a human video may have its own policy
         self.enlarge.on_click(lambda _: tab.run(self.open_enlarged, "enlarging the images"))
         self.scripted.on_click(lambda _: tab.run(self.make_scripted, "making a scripted demonstration"))
@@ -185,6 +202,11 @@ class ImitatePanel:
             )
         summary = ck.summary or "No measured results are recorded with this checkpoint."
         return f"{summary}\n\nFile: `{ck.path}`"
+
+    def _on_task_chosen(self, event: Any) -> None:
+        """Another task: its demonstrations and the policy that plans it."""
+        self._fill_demos()
+        self._show_policy()
 
     def _show_policy(self) -> None:
         task, who = self.task_name, self.demonstrator()
@@ -361,9 +383,16 @@ class ImitatePanel:
         self.tab.view.clear_overlay("plan")
         self.tab.view.show_null_plan(None)
         self.plan_job = self.app.jobs.submit(
-            "plan", {"checkpoint": ck.path, "expert_episode_id": demo, "task": task, "seed": seed,
-                     "robot": self._robot(task)}, started_by=self.tab.client.client_id,
-        )  # fmt: skip
+            "plan",
+            {
+                "checkpoint": ck.path,
+                "expert_episode_id": demo,
+                "task": task,
+                "seed": seed,
+                "robot": self._robot(task),
+            },
+            started_by=self.tab.client.client_id,
+        )
         self._clear_plan("")  # the previous plan's images must not pass for this one's
         self.show_expert_frames(demo, frames_seen(ck.path))
         self.status.content = f"Planning with {'the **oracle**' if ck.is_oracle else f'`{ck.id}`'}…"
@@ -391,8 +420,9 @@ class ImitatePanel:
         if "latent_images" in data:
             lat = data["latent_images"]
             self._latents = np.asarray(lat)
-            self.latent_strip.image = filmstrip(lat, cols=min(5, len(lat)), height=60,
-                                                labels=[f"t{i + 2}" for i in range(len(lat))])  # fmt: skip
+            self.latent_strip.image = filmstrip(
+                lat, cols=min(5, len(lat)), height=60, labels=[f"t{i + 2}" for i in range(len(lat))]
+            )
             self.latent_strip.visible = True
             self.latent_note.content = ""
         else:
@@ -414,8 +444,16 @@ class ImitatePanel:
         task, seed, demo = self.task_name, int(self.seed.value), self.demo_id()
         ck = self.policy_for(task, self.demonstrator())
         replans = int(self.replans.value)
-        spec = {"checkpoint": ck.path, "checkpoint_id": ck.id, "expert_episode_id": demo, "task": task,
-                "seed": seed, "replans": replans, "robot": self._robot(task), "speed": SPEEDS[self.speed.value]}  # fmt: skip
+        spec = {
+            "checkpoint": ck.path,
+            "checkpoint_id": ck.id,
+            "expert_episode_id": demo,
+            "task": task,
+            "seed": seed,
+            "replans": replans,
+            "robot": self._robot(task),
+            "speed": SPEEDS[self.speed.value],
+        }
         self.app.runs.register_checkpoint(self.app.store.catalog, ck)  # the stored rollout refers to it
         tracked = self.app.jobs.submit("rollout", spec, started_by=self.tab.client.client_id)
         self.outcome.content = ""
@@ -440,8 +478,11 @@ class ImitatePanel:
         self.detach()
         spec = tracked.spec
         self.rollout = tracked
-        token = self._show_scene(spec["task"], int(spec["seed"]),
-                                 f"Rollout `{tracked.job}` — **{spec['task']}**, seed {spec['seed']} (live).")  # fmt: skip
+        token = self._show_scene(
+            spec["task"],
+            int(spec["seed"]),
+            f"Rollout `{tracked.job}` — **{spec['task']}**, seed {spec['seed']} (live).",
+        )
         self._rollout_token = token
 
         def on_frame(frame) -> None:

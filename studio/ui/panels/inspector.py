@@ -64,8 +64,11 @@ class InspectorPanel:
         self.plan_info = gui.add_markdown("")
         with gui.add_folder("Fork from this moment", visible=False) as self.fork_folder:
             self.fork_role = gui.add_dropdown("Save as", tuple(ROLES), initial_value=next(iter(ROLES)))
-            self.fork_button = gui.add_button("Fork at this step", icon="git-fork",
-                                              hint="restore the simulator at the timeline's step and record a correction")  # fmt: skip
+            self.fork_button = gui.add_button(
+                "Fork at this step",
+                icon="git-fork",
+                hint="restore the simulator at the timeline's step and record a correction",
+            )
             self.fork_status = gui.add_markdown("")
             self.fork_grip = gui.add_button_group("Fork gripper", ("Open", "Close"), visible=False)
             self.fork_save = gui.add_button("Stop & save the fork", icon="device-floppy", visible=False)
@@ -275,8 +278,10 @@ class InspectorPanel:
             if null is not None and wps is not None:
                 gain = self.plans.get(f"plan{k}_guidance_gain")
                 moved = float(np.linalg.norm(np.asarray(wps)[:, :3] - np.asarray(null)[:, :3], axis=1).max())
-                guidance = {"guided": bool(self.plans.get(f"plan{k}_guided", True)),
-                            "gain": None if gain is None else float(gain)}  # fmt: skip
+                guidance = {
+                    "guided": bool(self.plans.get(f"plan{k}_guided", True)),
+                    "gain": None if gain is None else float(gain),
+                }
                 text += guidance_note(guidance, moved)
             lat = self.latents.get(k)
             if lat is not None and len(lat):

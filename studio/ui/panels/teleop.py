@@ -135,9 +135,12 @@ class TeleopPanel:
         gui.add_markdown(HINTS)
         scenes = tuple(s for s in SCENES if scene_tasks(s))
         self.scene = gui.add_dropdown("Scene", scenes, initial_value=scenes[0])
-        self.robot = gui.add_dropdown("Robot", TABLETOP_ROBOTS, initial_value="sawyer",
-                                      hint="Sawyer or a human hand: expert demonstrations; Franka Panda: agent "
-                                           "trajectories")  # fmt: skip
+        self.robot = gui.add_dropdown(
+            "Robot",
+            TABLETOP_ROBOTS,
+            initial_value="sawyer",
+            hint="Sawyer or a human hand: expert demonstrations; Franka Panda: agent trajectories",
+        )
         tasks = scene_tasks(scenes[0])
         self.task = gui.add_dropdown("Task", tuple(tasks), initial_value=tasks[0])
         self.task_note = gui.add_markdown(held_out_note(tasks[0]))
@@ -160,12 +163,19 @@ class TeleopPanel:
         self.rec_status = gui.add_markdown("")
         self.status = gui.add_markdown("Waiting for a sim worker…")
         self.cue_line = gui.add_markdown("")
-        self.record = gui.add_button("Record", color="red", icon="player-record",
-                                     hint="reset the scene to its seed and start recording")  # fmt: skip
+        self.record = gui.add_button(
+            "Record",
+            color="red",
+            icon="player-record",
+            hint="reset the scene to its seed and start recording",
+        )
         self.stop = gui.add_button("Stop & save", icon="player-stop", disabled=True)
         self.discard = gui.add_button("Discard", icon="x", disabled=True)
-        self.success = gui.add_checkbox("Success", initial_value=False,
-                                        hint="pre-filled by the task's success check; tick or untick to override")  # fmt: skip
+        self.success = gui.add_checkbox(
+            "Success",
+            initial_value=False,
+            hint="pre-filled by the task's success check; tick or untick to override",
+        )
         self.preview = gui.add_image(np.zeros((*PREVIEW_SIZE, 3), np.uint8), label="External camera (live)")
         with gui.add_folder(
             "Interrupted recordings", expand_by_default=True, visible=False
@@ -650,8 +660,17 @@ class TeleopPanel:
         assert info is not None  # a client has an open session
         role = DEFAULT_ROLE.get(info.robot, "expert")
         draft = new_draft_id()
-        self.app.drafts.create(draft, {"scene": info.scene, "robot": info.robot, "task": info.task, "seed": info.seed,
-                                       "control_dt": info.control_dt, "role": role})  # fmt: skip
+        self.app.drafts.create(
+            draft,
+            {
+                "scene": info.scene,
+                "robot": info.robot,
+                "task": info.task,
+                "seed": info.seed,
+                "control_dt": info.control_dt,
+                "role": role,
+            },
+        )
         try:
             self.client.start_recording(role=role, reset=True, draft=draft)
             self._rest_pending, self._target, self._goal = True, None, None
@@ -797,8 +816,11 @@ class TeleopPanel:
         if client is not None and not self.app.hub.directory.is_alive(client.worker) and not self._lost:
             # The worker hosting this session is gone (killed, machine lost): wait for another one.
             self._lost = True
-            self.tab.notify("Sim worker lost", f"{client.worker} left the bus; reopening on the next sim worker.",
-                            error=True)  # fmt: skip
+            self.tab.notify(
+                "Sim worker lost",
+                f"{client.worker} left the bus; reopening on the next sim worker.",
+                error=True,
+            )
             self.tab.run(self._drop_client, "dropping the lost session")
         if client is not None and self._recording:
             state, _ = client.state.get()

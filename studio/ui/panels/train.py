@@ -128,12 +128,20 @@ class TrainPanel:
                 uplot.Series(label="soft-DTW", stroke="#1f77b4", width=1.5),
                 uplot.Series(label="world model", stroke="#d62728", width=1.5),
             ),
-            title="Losses", aspect=1.5, scales={"x": uplot.Scale(time=False, auto=True)},
-        )  # fmt: skip
+            title="Losses",
+            aspect=1.5,
+            scales={"x": uplot.Scale(time=False, auto=True)},
+        )
         self.lr_plot = gui.add_uplot(
-            (x, nan), (uplot.Series(label="step"), uplot.Series(label="learning rate ×1e-4", stroke="#2ca02c", width=1.5)),
-            title="Learning rate", aspect=2.5, scales={"x": uplot.Scale(time=False, auto=True)},
-        )  # fmt: skip
+            (x, nan),
+            (
+                uplot.Series(label="step"),
+                uplot.Series(label="learning rate ×1e-4", stroke="#2ca02c", width=1.5),
+            ),
+            title="Learning rate",
+            aspect=2.5,
+            scales={"x": uplot.Scale(time=False, auto=True)},
+        )
         with gui.add_folder("Runs and checkpoints"):
             self.runs_table = gui.add_markdown("")
             self.active = gui.add_dropdown(
@@ -143,7 +151,7 @@ class TrainPanel:
             with gui.add_folder("About the active policy", expand_by_default=False):
                 self.active_about = gui.add_markdown("")
         self._fill_tasks()
-        self.scene.on_update(lambda e: e.client and (self._fill_tasks(), self._refresh_checkpoints()))
+        self.scene.on_update(self._on_scene_chosen)
         for widget in (self.config, self.overrides, self.seed):
             widget.on_update(lambda _: self._recount())
         self.start.on_click(lambda _: self._submit(False))
@@ -157,6 +165,12 @@ class TrainPanel:
         self._show_counts()
 
     # ------------------------------------------------------------------ configuration
+    def _on_scene_chosen(self, event: Any) -> None:
+        """A scene chosen by a user (not set by code): its tasks and checkpoints."""
+        if event.client:
+            self._fill_tasks()
+            self._refresh_checkpoints()
+
     def _fill_tasks(self) -> None:
         for box in self._task_boxes.values():
             box.remove()
@@ -261,9 +275,16 @@ class TrainPanel:
         job = new_job_id("train")
         run_dir = self.app.runs.new_run_dir(job)
         (run_dir / "split.json").write_text(
-            json.dumps({"scene": split.scene, "train": list(split.train), "test": list(split.test),
-                        "val_fraction": split.val_fraction, "description": split.description})
-        )  # fmt: skip
+            json.dumps(
+                {
+                    "scene": split.scene,
+                    "train": list(split.train),
+                    "test": list(split.test),
+                    "val_fraction": split.val_fraction,
+                    "description": split.description,
+                }
+            )
+        )
         spec: dict[str, Any] = {
             "data_dir": str(self.app.data_dir),
             "run_dir": str(run_dir),
@@ -568,8 +589,12 @@ class TrainPanel:
         if not any(r.id == tracked.job for r in catalog.runs()):
             return
         status = {"succeeded": "done", "failed": "failed", "cancelled": "cancelled"}[tracked.status.state]
-        catalog.update_run(tracked.job, status=status, finished=tracked.status.updated_at,
-                           error=tracked.status.reason if status == "failed" else None)  # fmt: skip
+        catalog.update_run(
+            tracked.job,
+            status=status,
+            finished=tracked.status.updated_at,
+            error=tracked.status.reason if status == "failed" else None,
+        )
 
     def _show_curves(self, tracked) -> None:
         run_dir = tracked.spec.get("run_dir")

@@ -52,13 +52,18 @@ class UploadPanel:
             t for t in list_tasks() if t.startswith("metaworld/")
         ]
         self.task = gui.add_dropdown("Task shown", tuple(tasks), initial_value=tasks[0])
-        self.fit = gui.add_dropdown("Fit", FIT_MODES, initial_value=FIT_MODES[0],
-                                    hint="letterbox keeps everything (black bars); crop fills the frame (edges lost)")  # fmt: skip
+        self.fit = gui.add_dropdown(
+            "Fit",
+            FIT_MODES,
+            initial_value=FIT_MODES[0],
+            hint="letterbox keeps everything (black bars); crop fills the frame (edges lost)",
+        )
         self.button = gui.add_upload_button("Upload a video…", icon="upload", mime_type="video/*")
         self.progress = gui.add_progress_bar(0.0, animated=True, visible=False)
         self.status = gui.add_markdown("")
-        self.strip = gui.add_image(np.full((40, 200, 3), 255, np.uint8), label="The 10 frames the model will see",
-                                   visible=False)  # fmt: skip
+        self.strip = gui.add_image(
+            np.full((40, 200, 3), 255, np.uint8), label="The 10 frames the model will see", visible=False
+        )
         self.save = gui.add_button("Save as expert demonstration", color="green", disabled=True)
         self.drop = gui.add_button("Discard upload", disabled=True)
         self.button.on_upload(self._on_upload)
