@@ -81,6 +81,7 @@ _UPLOADS = (keys.ALL_UPLOADS,)
 _BLOBS = (f"{keys.ROOT}/blobs/*/*",)
 _HUB_BLOBS = (f"{keys.ROOT}/blobs/hub/*",)
 _HUB_STORE = (f"{keys.ROOT}/store/artifacts", f"{keys.ROOT}/store/inputs")
+_HUB_INPUTS = (f"{keys.ROOT}/store/inputs",)
 #: What a job's worker publishes about it (never ``submit``/``cancel``/``status``: those are the hub's).
 _JOB_REPORTS = _jobs("report", "result", "progress", "artifacts", "poses")
 _SESSION_OUTPUT = _sessions("poses", "frames", "status", "draft")
@@ -165,6 +166,9 @@ GRANTS: dict[Role, list[Grant]] = {
         Grant("ingress", ("liveliness_token",), _sessions("client")),
         Grant("ingress", ("declare_subscriber",), _SESSION_OUTPUT),
         Grant("egress", ("put",), _SESSION_OUTPUT),
+        # Have the hub describe a submitted job's inputs by content id, for workers with their own data dir.
+        Grant("ingress", ("query",), _HUB_INPUTS),
+        Grant("egress", ("declare_queryable", "reply"), _HUB_INPUTS),
     ],
 }
 

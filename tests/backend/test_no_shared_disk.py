@@ -3,7 +3,9 @@ with its own data directory, on the bus only. A tiny model is trained on the hub
 on the sim worker, and a teleop recording lands in the hub's store; every file arrives by content id, byte for byte.
 
 :func:`run_flow` is the whole scenario; the second test runs it again with the hub, the trainer and the sim worker each
-in its own network namespace (veth pairs to the hub's), skipped where namespaces cannot be made."""
+in its own network namespace (veth pairs to the hub's) over the authenticated bus (``studio bus credentials``: TLS,
+a password and access rules per role), and checks that a client without credentials is refused at connect; it is
+skipped where namespaces cannot be made (not root, no CAP_NET_ADMIN)."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import subprocess
 import sys
 import threading
 from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +38,7 @@ from .test_train_job_small_data import GREEN, RED, TINY
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from data_fixtures import make_recording
 
-pytestmark = pytest.mark.timeout(900)  # ~45 s on an idle 2-core machine; generous for a loaded one
+pytestmark = pytest.mark.timeout(900)  # 15-25 s on a quiet 2-core machine; generous for a loaded one
 
 
 def sha256(path: Path) -> str:
@@ -111,32 +114,68 @@ def run_flow(
     hub_listen: str,
     connect: Mapping[str, str],
     prefixes: Mapping[str, Sequence[str]],
-    hub_args: Sequence[str] = (),
+    bus_configs: Mapping[str, Path] | None = None,
 ) -> None:
     """Hub, trainer and sim worker with their own data dirs; train, plan, roll out and record; check every file.
 
     ``connect`` is where the ``trainer``, the ``sim`` worker and this test's ``client`` find the hub; ``prefixes``
-    the command each process runs under (by name: ``hub``, ``trainer``, ``sim``); ``hub_args`` more options of the
-    hub."""
+    the command each process runs under (by name: ``hub``, ``trainer``, ``sim``); ``bus_configs`` the role config
+    (``studio bus credentials``) of each of them and of the ``client``, for an authenticated bus."""
     dirs = {name: tmp_path / name for name in ("hub", "trainer", "sim")}
     for d in dirs.values():
         d.mkdir()
     demo = seed_hub_store(dirs["hub"])
+
+    def config_args(name: str) -> list[str]:
+        return [] if bus_configs is None else ["--bus-config", str(bus_configs[name])]
+
     procs: list[Process] = []
     session = None
     try:
-        hub = Process(["hub", "--listen", hub_listen, "--data-dir", str(dirs["hub"]), "--workers", "none",
-                       "--log-level", "WARNING", *hub_args], tmp_path / "hub.log", prefixes.get("hub", ()))  # fmt: skip
+        hub = Process(
+            [
+                "hub",
+                "--listen",
+                hub_listen,
+                "--data-dir",
+                str(dirs["hub"]),
+                "--workers",
+                "none",
+                "--log-level",
+                "WARNING",
+                *config_args("hub"),
+            ],
+            tmp_path / "hub.log",
+            prefixes.get("hub", ()),
+        )
         procs.append(hub)
         hub.wait_for("studio hub ready", 60)
         for kind, name in (("train", "trainer"), ("sim", "sim")):
-            procs.append(Process(
-                ["worker", kind, "--connect", connect[name], "--id", f"{name}-1", "--data-dir", str(dirs[name]),
-                 "--own-data-dir", "--log-level", "WARNING"], tmp_path / f"{name}.log", prefixes.get(name, ()),
-            ))  # fmt: skip
-        session = bus.open_session(
-            bus.BusConfig.worker([connect["client"]])
-        )  # the UI's side, as another client
+            procs.append(
+                Process(
+                    [
+                        "worker",
+                        kind,
+                        "--connect",
+                        connect[name],
+                        "--id",
+                        f"{name}-1",
+                        "--data-dir",
+                        str(dirs[name]),
+                        "--own-data-dir",
+                        "--log-level",
+                        "WARNING",
+                        *config_args(name),
+                    ],
+                    tmp_path / f"{name}.log",
+                    prefixes.get(name, ()),
+                )
+            )
+        if bus_configs is None:  # the UI's side, as another client
+            client_config = bus.BusConfig.worker([connect["client"]])
+        else:
+            client_config = bus.BusConfig.from_file(bus_configs["client"], connect=[connect["client"]])
+        session = bus.open_session(client_config)
         directory = Directory(session)
         wait_worker(directory, "trainer-1")
         wait_worker(directory, "sim-1")
@@ -160,9 +199,20 @@ def run_flow(
         (hub_run / "split.json").write_text(
             json.dumps({"scene": "pick_place", "train": [RED, GREEN], "test": [], "val_fraction": 0.0})
         )
-        trained = finish("train", {"data_dir": str(dirs["hub"]), "run_dir": str(hub_run), "config": "cpu",
-                                   "overrides": TINY, "steps": 2, "seed": 0, "scene": str(hub_run / "split.json"),
-                                   "threads": 1}, 400)  # fmt: skip
+        trained = finish(
+            "train",
+            {
+                "data_dir": str(dirs["hub"]),
+                "run_dir": str(hub_run),
+                "config": "cpu",
+                "overrides": TINY,
+                "steps": 2,
+                "seed": 0,
+                "scene": str(hub_run / "split.json"),
+                "threads": 1,
+            },
+            400,
+        )
         assert trained["run_dir"] == str(hub_run.resolve())  # the run is told as the hub's
         with EpisodeStore(dirs["hub"]) as hub_store, EpisodeStore(dirs["trainer"]) as trainer_store:
             assert {m.id for m in trainer_store.episodes()} == {m.id for m in hub_store.episodes()}
@@ -202,13 +252,17 @@ def run_flow(
             client.open("pick_place", "sawyer", RED, seed=2)
             client.start_recording()
             start = np.asarray(client.poses.wait_until(lambda f: True, 10.0).ee_pos)
-            for _ in range(20):
+            for _ in range(40):  # well over the shortest recording the store takes
                 assert client.wait_ack(client.set_target(start + np.array([0.0, 0.0, 0.05]), 0.0)) is not None
             saved = client.stop_recording(timeout=120)
         assert isinstance(saved, msg.EpisodeSaved) and saved.via == "bus"
         with EpisodeStore(dirs["hub"]) as hub_store, EpisodeStore(dirs["sim"]) as sim_store:
             assert hub_store.catalog.get_episode(saved.episode) is not None
             assert sim_store.catalog.get_episode(saved.episode) is None
+        if bus_configs is not None:  # a client without credentials is refused at connect
+            plain = bus.BusConfig.worker([connect["client"].replace("tls/", "tcp/", 1)])
+            with pytest.raises(bus.BusError):
+                bus.open_session(replace(plain, connect_timeout_s=3.0)).close()
         directory.close()
     finally:
         if session is not None:
@@ -217,7 +271,6 @@ def run_flow(
             p.stop()
 
 
-@pytest.mark.slow
 def test_train_plan_rollout_and_record_with_no_shared_disk(tmp_path):
     endpoint = bus.loopback_endpoint(bus.free_loopback_port())
     run_flow(
@@ -235,8 +288,9 @@ def _ip(*args: str) -> None:
 @contextlib.contextmanager
 def namespaces() -> Iterator[dict[str, str]]:
     """A network namespace for the hub, the trainer and the sim worker; the hub's is joined by a veth pair to each of
-    the others and to this test's (the UI's side). Yields each one's address of the hub, by name; every namespace
-    (and with it its links) is deleted on the way out."""
+    the others and to this test's (the UI's side). Yields each one's IP address of the hub by name (``client``,
+    ``trainer``, ``sim``) and each namespace as ``ns:<role>``; every namespace (and with it its links) is deleted on
+    the way out."""
     if os.geteuid() != 0:
         pytest.skip("network namespaces need root (CAP_NET_ADMIN); not root here")
     tag = secrets.token_hex(2)
@@ -263,7 +317,7 @@ def namespaces() -> Iterator[dict[str, str]]:
             where = [] if peer == "client" else ["-n", names[peer]]
             _ip(*where, "addr", "add", f"10.77.{i}.2/30", "dev", far)
             _ip(*where, "link", "set", far, "up")
-            addresses[peer] = f"tcp/10.77.{i}.1:7447"
+            addresses[peer] = f"10.77.{i}.1"
         yield {**addresses, **{f"ns:{role}": ns for role, ns in names.items()}}
     finally:
         for ns in made:
@@ -272,13 +326,21 @@ def namespaces() -> Iterator[dict[str, str]]:
 
 
 @pytest.mark.slow
-def test_the_same_flow_with_each_process_in_its_own_network_namespace(tmp_path):
+def test_the_same_flow_with_each_process_in_its_own_network_namespace_over_the_authenticated_bus(tmp_path):
     with namespaces() as net:
+        creds = tmp_path / "creds"
+        hosts = [arg for peer in ("client", "trainer", "sim") for arg in ("--host", net[peer])]
+        made = subprocess.run(
+            [sys.executable, "-m", "studio.cli", "bus", "credentials", "--out", str(creds), *hosts],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert made.returncode == 0, made.stdout + made.stderr
+        roles = {"hub": "hub", "trainer": "train", "sim": "sim", "client": "ui"}
+        configs = {name: creds / role / "bus.json5" for name, role in roles.items()}
         prefixes = {role: ("ip", "netns", "exec", net[f"ns:{role}"]) for role in ("hub", "trainer", "sim")}
-        connect = {peer: net[peer] for peer in ("client", "trainer", "sim")}
-        # A plain tcp bus beyond loopback: where the bus refuses that by default, say so with its flag.
-        insecure = getattr(bus, "INSECURE_FLAG", None)
-        hub_args = [insecure] if insecure else []
+        connect = {peer: f"tls/{net[peer]}:7447" for peer in ("client", "trainer", "sim")}
         run_flow(
-            tmp_path, hub_listen="tcp/0.0.0.0:7447", connect=connect, prefixes=prefixes, hub_args=hub_args
+            tmp_path, hub_listen="tls/0.0.0.0:7447", connect=connect, prefixes=prefixes, bus_configs=configs
         )
