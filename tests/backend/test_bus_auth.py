@@ -13,6 +13,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zenoh
 
@@ -20,8 +21,9 @@ from studio.backend import bus, credentials, keys
 from studio.backend import messages as msg
 from studio.backend.embedded import start_embedded_workers
 from studio.backend.hub import Hub
-from studio.backend.jobs import JobClient
+from studio.backend.job_client import JobClient
 from studio.backend.presence import Directory
+from studio.backend.teleop_client import TeleopClient
 
 from .conftest import Workers, wait_worker
 
@@ -201,3 +203,34 @@ def test_the_hubs_own_trainer_joins_with_the_credentials_beside_the_hubs(hub, bu
         assert embedded.wait_ready(hub.directory, timeout=90), "".join(
             p.read_text() for p in logs if p.exists()
         )
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(400)
+def test_a_ui_drives_a_remote_sim_worker_whose_episode_is_shipped_over_tls(
+    hub, bundle, tls_endpoint, open_role, tmp_path
+):
+    """Teleop from a `ui` client to a `sim` worker without a data dir: commands, poses, the recording's status and
+    the episode's chunks all pass the hub's rules, and the episode lands in the hub's store."""
+    workers = Workers(tls_endpoint, tmp_path)
+    try:
+        workers.start("sim", "tls-sim", "--bus-config", str(bundle.configs["sim"]), handlers=())
+        ui = open_role("ui")
+        directory = Directory(ui)
+        try:
+            wait_worker(directory, "tls-sim", timeout=90)
+        except AssertionError:
+            raise AssertionError(workers.log("tls-sim")) from None
+        finally:
+            directory.close()
+        with TeleopClient(ui, "tls-sim", timeout=120.0) as client:
+            client.open("pick_place", "sawyer", "pick_place/cube->red", seed=2)
+            client.start_recording()
+            start = np.asarray(client.poses.wait_until(lambda f: True, 10.0).ee_pos)
+            for _ in range(25):
+                assert client.wait_ack(client.set_target(start + np.array([0.0, 0.0, 0.05]), 0.0)) is not None
+            saved = client.stop_recording(timeout=120)
+        assert isinstance(saved, msg.EpisodeSaved) and saved.via == "bus", workers.log("tls-sim")
+        assert hub.store.catalog.get_episode(saved.episode) is not None
+    finally:
+        workers.close()
