@@ -42,6 +42,7 @@ from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.episode_transfer import CHUNK_BYTES
 from studio.backend.jobs import JobClient
+from studio.data.atomic_files import atomic_write, fsync_path
 
 #: The holder name of the hub's data directory.
 HUB_HOLDER = "hub"
@@ -108,27 +109,11 @@ def file_digest(path: Path) -> tuple[str, int]:
     return h.hexdigest(), size
 
 
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def _copy_atomically(src: Path, dest: Path) -> None:
     """``dest`` becomes a durable copy of ``src`` in one rename (a reader never sees half of it)."""
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-    try:
-        with open(src, "rb") as fin, open(tmp, "wb") as fout:
-            shutil.copyfileobj(fin, fout, _READ_BYTES)
-            fout.flush()
-            os.fsync(fout.fileno())
-        os.replace(tmp, dest)
-    finally:
-        tmp.unlink(missing_ok=True)
-    _fsync_dir(dest.parent)
+    with open(src, "rb") as fin:
+        atomic_write(dest, lambda fout: shutil.copyfileobj(fin, fout, _READ_BYTES))
 
 
 def data_path(data_dir: Path, rel: str) -> Path:
@@ -219,10 +204,7 @@ class BlobCache:
         """Keep ``data`` in the cache; returns its content id."""
         blob = hashlib.sha256(data).hexdigest()
         if not self.has(blob):
-            tmp = self.partial_dir / f".{blob}.{os.getpid()}.{threading.get_ident()}.tmp"
-            tmp.write_bytes(data)
-            os.chmod(tmp, 0o444)
-            os.replace(tmp, self.blob_path(blob))
+            atomic_write(self.blob_path(blob), data)
         return blob
 
     def place(self, blob: str, dest: Path) -> bool:
@@ -379,7 +361,7 @@ class BlobFetcher:
             )
         os.chmod(partial, 0o444)
         os.replace(partial, self.cache.blob_path(blob))
-        _fsync_dir(self.cache.blobs_dir)
+        fsync_path(self.cache.blobs_dir, directory=True)
         return self.cache.blob_path(blob)
 
 
