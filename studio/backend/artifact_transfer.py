@@ -677,8 +677,13 @@ class WorkerArtifacts:
         manifest_path = self.fetcher.fetch(HUB_HOLDER, inputs, max_bytes=MAX_MANIFEST_BYTES)
         try:
             manifest = msgspec.json.decode(manifest_path.read_bytes(), type=InputManifest)
-        except msgspec.ValidationError as e:
+        except msgspec.DecodeError as e:
             raise TransferError(f"the inputs {inputs} are not a manifest: {e}") from None
+        for ref in manifest.files:
+            if ref.path.split("/", 1)[0] not in INPUT_DIRS:
+                raise TransferError(
+                    f"a job's input files lie under {', '.join(INPUT_DIRS)}/, not at {ref.path}"
+                )
         for ref in manifest.files:
             self._fetch_to(ref, data_path(self.data_dir, ref.path))
         for episode in manifest.episodes:
@@ -692,6 +697,10 @@ class WorkerArtifacts:
                     if ref.path not in _episode_file_names():
                         raise TransferError(f"episode {episode.id} lists a file {ref.path}")
                     self._fetch_to(ref, work / ref.path)
+                from studio.data.episode import read_meta
+
+                if read_meta(work)[0].id != episode.id:
+                    raise TransferError(f"the files listed for episode {episode.id} are another episode's")
                 store.add_episode_files(work)
             finally:
                 shutil.rmtree(work, ignore_errors=True)

@@ -17,6 +17,7 @@ from studio.backend.artifact_transfer import (
     BlobCache,
     BlobFetcher,
     BlobServer,
+    FileRef,
     HubArtifacts,
     InputManifest,
     TransferError,
@@ -233,3 +234,27 @@ def test_an_offer_naming_a_path_that_leaves_the_data_dir_is_not_a_message(path):
     offer = msg.encode(msg.BlobOffer(holder="sim-1", blob="a" * 64, size=1, path=path))  # not checked here
     with pytest.raises(msg.ProtocolError):
         msg.decode(offer)
+
+
+def test_a_manifest_naming_a_file_outside_the_input_dirs_is_refused_before_anything_is_fetched(
+    sessions, tmp_path
+):
+    hub_s, worker_s = sessions
+    with EpisodeStore(tmp_path / "hub") as hub_store:
+        hub = HubArtifacts(hub_s, tmp_path / "hub", hub_store)
+        worker = WorkerArtifacts(worker_s, tmp_path / "worker", "sim-1")
+        try:
+            (tmp_path / "worker" / "catalog.sqlite").write_bytes(b"the worker's own")
+            blob = _file(tmp_path / "hub" / "runs" / "evil.bin", 100)
+            hub.cache.publish(tmp_path / "hub" / "runs" / "evil.bin")
+            manifest = InputManifest(
+                root=str(tmp_path / "hub"), files=[FileRef(path="catalog.sqlite", blob=blob, size=100)]
+            )
+            inputs = hub.cache.keep_bytes(msgspec.json.encode(manifest))
+            with pytest.raises(TransferError, match=r"not at catalog\.sqlite"):
+                worker.prepare({"checkpoint": "oracle", "inputs": inputs})
+            assert (tmp_path / "worker" / "catalog.sqlite").read_bytes() == b"the worker's own"
+            assert not worker.cache.has(blob)
+        finally:
+            worker.close()
+            hub.close()
