@@ -237,8 +237,19 @@ def make_ca(directory: Path) -> tuple[Path, Path]:
             "[ca]\nbasicConstraints = critical,CA:TRUE\nkeyUsage = critical,keyCertSign,cRLSign\n"
             "subjectKeyIdentifier = hash\n"
         )
-        _openssl("req", "-x509", "-new", "-key", str(key), "-config", str(conf), "-days", str(CA_DAYS),
-                 "-out", str(cert))  # fmt: skip
+        _openssl(
+            "req",
+            "-x509",
+            "-new",
+            "-key",
+            str(key),
+            "-config",
+            str(conf),
+            "-days",
+            str(CA_DAYS),
+            "-out",
+            str(cert),
+        )
     return cert, key
 
 
@@ -273,9 +284,26 @@ def make_certificate(
         csr, ext = Path(tmp) / "req.csr", Path(tmp) / "ext.cnf"
         ext.write_text("[leaf]\n" + "\n".join(extensions) + "\n")
         _openssl("req", "-new", "-key", str(key), "-subj", f"/CN={name}", "-out", str(csr))
-        _openssl("x509", "-req", "-in", str(csr), "-CA", str(ca[0]), "-CAkey", str(ca[1]),
-                 "-set_serial", f"0x{secrets.token_hex(16)}", "-days", str(CERT_DAYS),
-                 "-extfile", str(ext), "-extensions", "leaf", "-out", str(cert))  # fmt: skip
+        _openssl(
+            "x509",
+            "-req",
+            "-in",
+            str(csr),
+            "-CA",
+            str(ca[0]),
+            "-CAkey",
+            str(ca[1]),
+            "-set_serial",
+            f"0x{secrets.token_hex(16)}",
+            "-days",
+            str(CERT_DAYS),
+            "-extfile",
+            str(ext),
+            "-extensions",
+            "leaf",
+            "-out",
+            str(cert),
+        )
     return cert, key
 
 

@@ -143,12 +143,27 @@ class SimWorkerProcess:
         self.spool = tempfile.TemporaryDirectory(prefix="studio-bench-bus-")
         self.worker = f"bench-{name}-{os.getpid()}"
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "studio.cli", "worker", "sim", "--connect", endpoint, "--id", self.worker,
-             "--spool-dir", self.spool.name, "--control-hz", str(args.control_hz), "--log-level", "WARNING",
-             *(bus_args or [])],
+            [
+                sys.executable,
+                "-m",
+                "studio.cli",
+                "worker",
+                "sim",
+                "--connect",
+                endpoint,
+                "--id",
+                self.worker,
+                "--spool-dir",
+                self.spool.name,
+                "--control-hz",
+                str(args.control_hz),
+                "--log-level",
+                "WARNING",
+                *(bus_args or []),
+            ],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,  # its "ready" line would break the JSON on stdout; errors go to stderr
-        )  # fmt: skip
+        )
         self.client: TeleopClient | None = None
         try:
             worker = self.worker

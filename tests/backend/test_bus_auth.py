@@ -8,6 +8,9 @@ but the hub's access rules drop what that role may not send — the hub never se
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import replace
@@ -97,11 +100,13 @@ def test_credentials_let_roles_in_and_a_ui_submit_a_job(hub, open_role):
     [
         ({"transport.auth": None}, "no user or password"),
         ({"transport.auth.usrpwd.password": "not-the-password"}, "a wrong password"),
-        ({"transport.link.tls.connect_certificate": None, "transport.link.tls.connect_private_key": None},
-         "no client certificate"),
+        (
+            {"transport.link.tls.connect_certificate": None, "transport.link.tls.connect_private_key": None},
+            "no client certificate",
+        ),
         ({"transport.link.tls.enable_mtls": False}, "a certificate it does not present"),
     ],
-)  # fmt: skip
+)
 def test_a_client_without_its_credentials_is_refused_at_connect(hub, open_role, changes, what):
     with pytest.raises(bus.BusError, match="cannot open the bus as client"):
         open_role("ui", timeout=3.0, **changes)
@@ -234,3 +239,42 @@ def test_a_ui_drives_a_remote_sim_worker_whose_episode_is_shipped_over_tls(
         assert hub.store.catalog.get_episode(saved.episode) is not None
     finally:
         workers.close()
+
+
+def test_studio_hub_starts_with_its_role_config_and_lets_a_ui_in(bundle, tls_endpoint, open_role, tmp_path):
+    hub = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "studio.cli",
+            "hub",
+            "--bus-config",
+            str(bundle.configs["hub"]),
+            "--listen",
+            tls_endpoint,
+            "--workers",
+            "none",
+            "--data-dir",
+            str(tmp_path / "data"),
+            "--log-level",
+            "WARNING",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert hub.stdout is not None
+        ready = hub.stdout.readline()
+        assert f"studio hub ready on {tls_endpoint}" in ready, ready + hub.stdout.read()
+        ui = open_role("ui")
+        status = JobClient(ui).submit("count", {"steps": 1}, worker_kind="nobody")
+        assert [s.job for s in JobClient(ui).list()] == [status.job]
+    finally:
+        hub.send_signal(signal.SIGTERM)
+        try:
+            assert hub.wait(30) == 0
+        finally:
+            if hub.poll() is None:
+                hub.kill()
