@@ -41,7 +41,7 @@ import zenoh
 from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.episode_transfer import CHUNK_BYTES
-from studio.backend.jobs import JobClient
+from studio.backend.job_client import JobClient
 from studio.data.atomic_files import atomic_write, fsync_path
 
 #: The holder name of the hub's data directory.

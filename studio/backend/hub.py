@@ -1,7 +1,7 @@
 """The UI host's side of the bus in one object, and ``studio hub`` to run it without the browser UI.
 
 :class:`Hub` opens the router session workers connect to and hosts what exists once per studio: the
-worker :class:`~studio.backend.presence.Directory`, the :class:`~studio.backend.jobs.JobQueue` (with its
+worker :class:`~studio.backend.presence.Directory`, the :class:`~studio.backend.job_queue.JobQueue` (with its
 journal under ``<data-dir>/jobs/``), the :class:`~studio.backend.episode_transfer.EpisodeSink` that
 stores episodes shipped by remote workers, and the :class:`~studio.backend.artifact_transfer.HubArtifacts` that
 serve job inputs to, and take job outputs from, workers with their own data dir. ``studio serve`` creates one and,
@@ -21,7 +21,8 @@ from studio.backend import bus
 from studio.backend.artifact_transfer import ArtifactJobClient, HubArtifacts
 from studio.backend.credentials import EMBEDDED_DIR
 from studio.backend.episode_transfer import EpisodeSink
-from studio.backend.jobs import JobClient, JobQueue
+from studio.backend.job_client import JobClient
+from studio.backend.job_queue import JobQueue
 from studio.backend.presence import Directory
 from studio.backend.stopping import StopSignals
 

@@ -1,6 +1,6 @@
 """The jobs the browser studio follows, shared by every tab: status, progress history, plans, live poses.
 
-A job is followed once (one :class:`~studio.backend.jobs.JobWatch` per job for the whole app), however
+A job is followed once (one :class:`~studio.backend.job_client.JobWatch` per job for the whole app), however
 many tabs show it, so that every viewer of a running rollout sees the same stream. Tabs read the state
 of a :class:`TrackedJob` when they refresh and subscribe to its poses while they display it.
 """
@@ -14,7 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from studio.backend import messages as msg
-from studio.backend.jobs import JobClient, JobWatch
+from studio.backend.job_client import JobClient, JobWatch
 
 #: Progress records kept per job (training curves come from the run's metrics file when it is readable).
 MAX_HISTORY = 5000

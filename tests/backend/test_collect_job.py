@@ -9,8 +9,8 @@ import pytest
 
 from studio.backend import bus
 from studio.backend.collect_job import Robot, SpecError, check_spec
+from studio.backend.job_client import JobClient, new_job_id
 from studio.backend.job_runner import JOB_KINDS
-from studio.backend.jobs import JobClient, new_job_id
 from studio.data.collect import ROLE_OF_ROBOT
 from studio.data.store import EpisodeStore
 

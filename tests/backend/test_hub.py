@@ -13,7 +13,7 @@ import pytest
 
 from studio.backend import bus
 from studio.backend import messages as msg
-from studio.backend.jobs import JobClient
+from studio.backend.job_client import JobClient
 from studio.backend.presence import Directory
 from studio.backend.teleop_client import TeleopClient
 from studio.data.store import EpisodeStore

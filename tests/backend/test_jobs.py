@@ -11,7 +11,7 @@ import pytest
 from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.hub import Hub
-from studio.backend.jobs import JobClient
+from studio.backend.job_client import JobClient
 
 from .conftest import wait_worker
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from eval.tiny_checkpoint import write_tiny_checkpoint
 
-from studio.backend.jobs import JobClient
+from studio.backend.job_client import JobClient
 from studio.backend.plan_job import expert_indices
 from studio.data.store import EpisodeStore
 

@@ -10,10 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from studio.backend import bus, jobs, keys
+from studio.backend import bus, job_journal, keys
 from studio.backend import messages as msg
 from studio.backend.hub import Hub
-from studio.backend.jobs import JobClient, JobQueue
+from studio.backend.job_client import JobClient
+from studio.backend.job_queue import JobQueue
 from studio.backend.presence import Directory
 
 from .conftest import wait_worker
@@ -95,7 +96,7 @@ def test_a_journal_that_cannot_be_written_loses_no_outcome(tmp_path, port, worke
     client = JobClient(hub.session)
     spec = {"steps": 5, "fail_at": 0, "run_dir": str(tmp_path / "run")}
     job = client.submit("count", spec, worker_kind="train")  # journaled as queued; no worker yet
-    monkeypatch.setattr(jobs, "open", _failing_open, raising=False)
+    monkeypatch.setattr(job_journal, "open", _failing_open, raising=False)
     with client.watch(job.job) as watch:
         workers.start("train", "t1")
         final = watch.wait(timeout=60)

@@ -8,7 +8,7 @@ import time
 import pytest
 
 from studio.backend import bus
-from studio.backend.jobs import JobClient
+from studio.backend.job_client import JobClient
 from studio.data.collect import CollectConfig, collect
 from studio.data.store import EpisodeStore
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from studio.backend import bus
-from studio.backend.jobs import JobClient
+from studio.backend.job_client import JobClient
 from studio.data.store import EpisodeStore
 
 from .conftest import wait_worker

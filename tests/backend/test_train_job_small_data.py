@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from studio.backend.jobs import JobClient
+from studio.backend.job_client import JobClient
 from studio.backend.train_job import parse_spec
 from studio.data.store import EpisodeStore
 from studio.model.checkpoint import load_checkpoint

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from studio.backend.collect_job import MAX_EPISODES, MAX_SEED, SpecError, check_spec
-from studio.backend.jobs import new_job_id
+from studio.backend.job_client import new_job_id
 from studio.data.collect import ROLE_OF_ROBOT
 from studio.data.episode import SOURCES
 from studio.data.splits import load_split

@@ -28,7 +28,7 @@ import numpy as np
 import viser
 import viser.uplot as uplot
 
-from studio.backend.jobs import new_job_id
+from studio.backend.job_client import new_job_id
 from studio.data.splits import SplitSpec, load_split
 from studio.model.config import (
     FINE_TUNE_BATCH,

@@ -1,4 +1,7 @@
-"""Jobs on the bus: the hub's queue that assigns them to workers and watches them, and the client API.
+"""The hub's job queue: it assigns jobs to workers, watches them and journals every change.
+
+The client side (submit, watch, cancel) is :mod:`studio.backend.job_client`; the journal file is
+:mod:`studio.backend.job_journal`.
 
 Life of a job::
 
@@ -47,7 +50,6 @@ import bisect
 import heapq
 import itertools
 import os
-import secrets
 import threading
 import time
 from collections import OrderedDict
@@ -61,11 +63,10 @@ import zenoh
 
 from studio.backend import bus, keys
 from studio.backend import messages as msg
+from studio.backend.job_journal import JournalEntry, JournalError, JournalFile
 from studio.backend.job_runner import JOB_KINDS, check_spec
 from studio.backend.presence import Directory, WorkerEntry
-from studio.data.atomic_files import atomic_write
 
-JOURNAL_VERSION = 2
 #: Largest job spec the queue accepts, as JSON bytes (a spec names files and options, never data).
 MAX_SPEC_BYTES = 64 << 10
 #: Largest JobSubmit request payload the queue decodes.
@@ -76,117 +77,6 @@ MAX_UNFINISHED = 100_000
 KEEP_FINISHED = 500
 #: Queued jobs per queue whose changed position is pushed on ``…/status``.
 PUSHED_POSITIONS = 100
-
-
-def new_job_id(kind: str) -> str:
-    return f"{kind}-{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}-{secrets.token_hex(3)}"
-
-
-class _JournalEntry(msgspec.Struct):
-    status: msg.JobStatus
-    result: msg.JobResult | None = None
-
-
-class _JournalHeader(msgspec.Struct):
-    journal: str
-    version: int
-
-
-class _JournalV1(msgspec.Struct):
-    """The journal's first format: the whole queue as one JSON document, rewritten on every change."""
-
-    version: int
-    jobs: list[_JournalEntry]
-
-
-_HEADER = _JournalHeader(journal="studio-jobs", version=JOURNAL_VERSION)
-
-
-class JournalError(RuntimeError):
-    """The journal cannot be read at all (not a journal of this format)."""
-
-
-class _JournalFile:
-    """An append-only log of job entries: a header line, then one JSON entry per state change (the last entry
-    of a job wins). :meth:`compact` rewrites it with the given entries only, atomically."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self.lines = 0  # entries in the file
-        self._unsynced = False
-
-    def load(self) -> tuple[list[_JournalEntry], bool]:
-        """The entries (last per job), and whether the file should be compacted (old format, torn tail)."""
-        data = self.path.read_bytes()
-        if data.lstrip().startswith(b'{"version"'):
-            try:
-                old = msgspec.json.decode(data, type=_JournalV1)
-            except msgspec.MsgspecError as e:
-                raise JournalError(f"not a job journal: {e}") from None
-            if old.version != 1:
-                raise JournalError(f"journal version {old.version}, expected 1 or {JOURNAL_VERSION}")
-            return old.jobs, True
-        lines = data.split(b"\n")
-        try:
-            header = msgspec.json.decode(lines[0], type=_JournalHeader)
-        except msgspec.MsgspecError as e:
-            raise JournalError(f"not a job journal: {e}") from None
-        if header.version != JOURNAL_VERSION:
-            raise JournalError(f"journal version {header.version}, expected {JOURNAL_VERSION}")
-        latest: dict[str, _JournalEntry] = {}
-        torn = False
-        decoder = msgspec.json.Decoder(_JournalEntry)
-        for i, line in enumerate(lines[1:], start=1):
-            if not line.strip():
-                continue
-            try:
-                entry = decoder.decode(line)
-            except msgspec.MsgspecError as e:
-                if i >= len(lines) - 2:  # the last line, cut short by a crash mid-append
-                    torn = True
-                    continue
-                raise JournalError(f"line {i + 1}: {e}") from None
-            latest.pop(entry.status.job, None)  # re-insert: the dict's order is the order of last change
-            latest[entry.status.job] = entry
-            self.lines += 1
-        return list(latest.values()), torn
-
-    def append(self, entries: list[_JournalEntry]) -> None:
-        """Append entries and flush them to the OS (a crash of this process loses nothing; :meth:`sync` makes
-        them durable against a crash of the machine). Raises OSError."""
-        data = b"".join(msgspec.json.encode(e) + b"\n" for e in entries)
-        if not self.path.parent.is_dir():
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path, "ab") as f:
-            if f.tell() == 0:
-                data = msgspec.json.encode(_HEADER) + b"\n" + data
-                self.lines = 0
-            f.write(data)
-        self.lines += len(entries)
-        self._unsynced = True
-
-    def sync(self) -> None:
-        if self._unsynced and self.path.exists():
-            fd = os.open(self.path, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-            self._unsynced = False
-
-    def compact(self, entries: list[_JournalEntry]) -> None:
-        """Rewrite the file as a header and ``entries``, durably (temporary file, fsync, rename). Raises OSError."""
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        lines = [msgspec.json.encode(_HEADER)] + [msgspec.json.encode(e) for e in entries]
-        atomic_write(self.path, b"".join(line + b"\n" for line in lines))
-        self.lines = len(entries)
-        self._unsynced = False
-
-    def close(self) -> None:
-        try:
-            self.sync()
-        except OSError:
-            pass
 
 
 @dataclass
@@ -265,7 +155,7 @@ class JobQueue:
         self._positions_at = 0.0
         self._pending = _Pending()
         self._closed = False
-        self._journal = _JournalFile(self.journal_path) if self.journal_path is not None else None
+        self._journal = JournalFile(self.journal_path) if self.journal_path is not None else None
         self._journal_failed_at: float | None = None  # when set, the journal lags memory; rewrite it
         self._journal_synced_at = 0.0
         self._load_journal()
@@ -371,7 +261,7 @@ class JobQueue:
         if self._journal_failed_at is not None:
             return  # the rewrite that follows the failure will hold this change
         try:
-            self._journal.append([_JournalEntry(job.status, job.result)])
+            self._journal.append([JournalEntry(job.status, job.result)])
         except OSError as e:
             self._journal_failed(e)
 
@@ -389,7 +279,7 @@ class JobQueue:
         if self._journal is None:
             return True
         try:
-            self._journal.compact([_JournalEntry(j.status, j.result) for j in self._jobs.values()])
+            self._journal.compact([JournalEntry(j.status, j.result) for j in self._jobs.values()])
         except OSError as e:
             self._journal_failed(e)
             return False
@@ -963,176 +853,3 @@ class JobQueue:
                     if a is not None and a.job == assign.job:
                         del self._assigned[entry.worker]
                     self._skip_until[entry.worker] = time.monotonic() + 1.0
-
-
-# ---------------------------------------------------------------------------------------------- client
-class JobWatch:
-    """Follows one job: its newest status (by rank), progress, artifacts, result and live poses.
-
-    Callbacks run on Zenoh's threads. Use :meth:`wait` to block until the job reaches a state.
-    """
-
-    def __init__(
-        self,
-        session: zenoh.Session,
-        job: str,
-        *,
-        on_status: Callable[[msg.JobStatus], None] | None = None,
-        on_progress: Callable[[msg.JobProgress], None] | None = None,
-        on_artifact: Callable[[msg.JobArtifact], None] | None = None,
-        on_poses: Callable[[msg.PoseFrame], None] | None = None,
-    ):
-        self.job = keys.check_chunk(job, "job id")
-        self._cond = threading.Condition()
-        self.status: msg.JobStatus | None = None
-        self.progress: msg.JobProgress | None = None
-        self.result: msg.JobResult | None = None
-        self.artifacts: list[msg.JobArtifact] = []
-        self.history: list[msg.JobStatus] = []
-        self._on_status, self._on_progress, self._on_artifact = on_status, on_progress, on_artifact
-        self._subs = [
-            bus.declare_subscriber(session, keys.job_key(job, "status"), self._status, msg.JobStatus),
-            bus.declare_subscriber(session, keys.job_key(job, "progress"), self._progress, msg.JobProgress),
-            bus.declare_subscriber(session, keys.job_key(job, "artifacts"), self._artifact, msg.JobArtifact),
-            bus.declare_subscriber(session, keys.job_key(job, "result"), self._result, msg.JobResult),
-        ]
-        if on_poses is not None:
-            self._subs.append(
-                bus.declare_subscriber(
-                    session, keys.job_key(job, "poses"), lambda m, _s: on_poses(m), msg.PoseFrame
-                )
-            )
-        for status in bus.request_all(session, keys.job_key(job, "status"), msg.JobStatus):
-            self._status(status, None)
-        for result in bus.request_all(session, keys.job_key(job, "result"), msg.JobResult):
-            self._result(result, None)
-
-    def _status(self, status: msg.JobStatus, _sample: Any) -> None:
-        with self._cond:
-            if self.status is not None and msg.status_rank(status) < msg.status_rank(self.status):
-                return
-            self.status = status
-            self.history.append(status)
-            self._cond.notify_all()
-        if self._on_status is not None:
-            self._on_status(status)
-
-    def _progress(self, progress: msg.JobProgress, _sample: Any) -> None:
-        with self._cond:
-            self.progress = progress
-            self._cond.notify_all()
-        if self._on_progress is not None:
-            self._on_progress(progress)
-
-    def _artifact(self, artifact: msg.JobArtifact, _sample: Any) -> None:
-        with self._cond:
-            self.artifacts.append(artifact)
-            self._cond.notify_all()
-        if self._on_artifact is not None:
-            self._on_artifact(artifact)
-
-    def _result(self, result: msg.JobResult, _sample: Any) -> None:
-        with self._cond:
-            if self.result is None or result.attempt >= self.result.attempt:
-                self.result = result
-            self._cond.notify_all()
-
-    def wait(
-        self, predicate: Callable[[JobWatch], bool] | None = None, timeout: float = 10.0
-    ) -> msg.JobStatus | None:
-        """Wait until ``predicate(self)`` (default: the job is finished); returns the latest status.
-
-        Raises TimeoutError if it does not happen within ``timeout`` seconds.
-        """
-        pred = predicate or (lambda w: w.status is not None and w.status.terminal)
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while not pred(self):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise TimeoutError(
-                        f"job {self.job}: condition not reached within {timeout} s (status {self.status})"
-                    )
-                self._cond.wait(min(left, 0.1))
-            return self.status
-
-    def close(self) -> None:
-        for sub in self._subs:
-            try:
-                sub.undeclare()
-            except zenoh.ZError:
-                pass
-
-    def __enter__(self) -> JobWatch:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-
-class JobClient:
-    """Submit, list, watch and cancel jobs through the hub's queue."""
-
-    def __init__(self, session: zenoh.Session, timeout: float = 5.0):
-        self.session = session
-        self.timeout = timeout
-
-    def submit(
-        self,
-        kind: str,
-        spec: dict[str, Any],
-        *,
-        worker_kind: str | None = None,
-        requeue_on_worker_loss: bool | None = None,
-        max_attempts: int = 3,
-        job: str | None = None,
-    ) -> msg.JobStatus:
-        """Queue a job; the defaults for a known kind come from :data:`JOB_KINDS`."""
-        known = JOB_KINDS.get(kind)
-        if worker_kind is None:
-            if known is None:
-                raise ValueError(f"job kind {kind!r} is not in JOB_KINDS; pass worker_kind=")
-            worker_kind = known.worker_kind
-        if requeue_on_worker_loss is None:
-            requeue_on_worker_loss = known.requeue_on_worker_loss if known is not None else False
-        job = job or new_job_id(kind)
-        submit = msg.JobSubmit(
-            job=job,
-            kind=kind,
-            worker_kind=worker_kind,
-            spec=spec,
-            requeue_on_worker_loss=requeue_on_worker_loss,
-            max_attempts=max_attempts,
-        )
-        return bus.request(
-            self.session, keys.job_key(job, "submit"), submit, msg.JobStatus, timeout=self.timeout
-        )
-
-    def cancel(self, job: str, reason: str = "") -> msg.JobStatus:
-        return bus.request(
-            self.session,
-            keys.job_key(job, "cancel"),
-            msg.JobCancel(job=job, reason=reason),
-            msg.JobStatus,
-            timeout=self.timeout,
-        )
-
-    def list(self) -> list[msg.JobStatus]:
-        """Every job the queue knows, oldest first."""
-        statuses = bus.request_all(self.session, keys.all_jobs("status"), msg.JobStatus, timeout=self.timeout)
-        return sorted(statuses, key=lambda s: (s.submitted_at, s.job))
-
-    def status(self, job: str) -> msg.JobStatus | None:
-        found = bus.request_all(
-            self.session, keys.job_key(job, "status"), msg.JobStatus, timeout=self.timeout
-        )
-        return max(found, key=msg.status_rank) if found else None
-
-    def result(self, job: str) -> msg.JobResult | None:
-        found = bus.request_all(
-            self.session, keys.job_key(job, "result"), msg.JobResult, timeout=self.timeout
-        )
-        return max(found, key=lambda r: r.attempt) if found else None
-
-    def watch(self, job: str, **callbacks: Any) -> JobWatch:
-        return JobWatch(self.session, job, **callbacks)
