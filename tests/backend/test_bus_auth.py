@@ -158,6 +158,29 @@ def test_a_ui_cannot_pose_as_a_worker(hub, open_role):
         q.undeclare()
 
 
+def test_a_ui_never_sees_another_clients_teleop_commands(hub, open_role):
+    """Teleop commands carry their session's owner token: only the sim role receives them, so a second UI client
+    subscribing to every session's commands gets nothing, while a sim worker's subscriber (the control) gets them."""
+    cmd_key = keys.session_key("sim-box", "s-1", "cmd")
+    to_ui: list[bytes] = []
+    to_sim: list[bytes] = []
+    arrived = threading.Event()
+    owner, other_ui, sim = open_role("ui"), open_role("ui"), open_role("sim")
+    ui_sub = other_ui.declare_subscriber("studio/sim/*/*/cmd", lambda s: to_ui.append(s.payload.to_bytes()))
+    sim_sub = sim.declare_subscriber(
+        "studio/sim/*/*/cmd", lambda s: (to_sim.append(s.payload.to_bytes()), arrived.set())
+    )
+    try:
+        time.sleep(0.5)
+        owner.put(cmd_key, b"target", attachment=b"owner-token")
+        assert arrived.wait(5.0)
+        time.sleep(0.5)
+        assert to_sim == [b"target"] and to_ui == []
+    finally:
+        ui_sub.undeclare()
+        sim_sub.undeclare()
+
+
 def test_mixed_credentials_get_in_but_may_do_nothing(hub, open_role, bundle):
     """The UI's certificate with the sim worker's password: neither role's rules match, so nothing passes."""
     sim_password = json.loads((text := Path(bundle.configs["sim"]).read_text())[text.index("{") :])[
