@@ -100,10 +100,10 @@ def _worker_grants(kind: str) -> list[Grant]:
         Grant("ingress", ("query",), _BLOBS + _HUB_STORE),
         Grant("egress", ("declare_queryable", "reply"), _BLOBS + _HUB_STORE),
         Grant("ingress", ("declare_queryable", "reply"), _BLOBS),
-        Grant(
-            "ingress", ("declare_queryable", "reply"), _HUB_BLOBS, permission="deny"
-        ),  # only the hub is "hub"
         Grant("egress", ("query",), _BLOBS),
+        # Only the hub serves the hub's files: no worker answers for it, nor is asked (even with a wildcard).
+        Grant("ingress", ("declare_queryable", "reply"), _HUB_BLOBS, permission="deny"),
+        Grant("egress", ("query",), _HUB_BLOBS, permission="deny"),
     ]
 
 

@@ -181,6 +181,28 @@ def test_a_ui_never_sees_another_clients_teleop_commands(hub, open_role):
         sim_sub.undeclare()
 
 
+def test_no_worker_is_asked_for_the_hubs_files(hub, open_role):
+    """A sim worker serving every holder's files (a wildcard) is asked for its own kind of key but never for the
+    hub's: a fetcher of the hub's files only ever gets the hub's answer."""
+    asked: list[str] = []
+
+    def serve(query: zenoh.Query) -> None:
+        asked.append(str(query.key_expr))
+        query.reply(query.key_expr, b"forged")
+
+    sim, trainer = open_role("sim"), open_role("train")
+    q = sim.declare_queryable("studio/blobs/*/*", serve)
+    try:
+        time.sleep(0.5)
+        hub_replies = list(trainer.get("studio/blobs/hub/" + "a" * 64, timeout=2.0))
+        assert all(r.ok is None or r.ok.payload.to_bytes() != b"forged" for r in hub_replies)
+        worker_replies = list(trainer.get("studio/blobs/sim-box/" + "a" * 64, timeout=2.0))
+        assert [r.ok.payload.to_bytes() for r in worker_replies if r.ok is not None] == [b"forged"]
+        assert asked == ["studio/blobs/sim-box/" + "a" * 64]
+    finally:
+        q.undeclare()
+
+
 def test_mixed_credentials_get_in_but_may_do_nothing(hub, open_role, bundle):
     """The UI's certificate with the sim worker's password: neither role's rules match, so nothing passes."""
     sim_password = json.loads((text := Path(bundle.configs["sim"]).read_text())[text.index("{") :])[
