@@ -44,22 +44,23 @@ import time
 from pathlib import Path
 
 from studio.data.paths import add_data_dir_argument, resolve_data_dir
+from studio.model.recipes import RECIPES
 
-# The pick-and-place recipe on top of the ``cpu`` preset (docs/experiments.md).
-BASE_SETTINGS = ("train.expert_hflip=0.5", "train.hflip=0.5")
-REFINE_SETTINGS = ("train.aug_warmup=0", "train.alpha_warmup=0")
-# The grow stage: 𝒲 starts untrained, so the preset's α warm-up (𝓛_wm off for the first 10 % of the steps) stays;
-# the encoder the earlier stages trained stays fixed (with it training, the grow stage lost held-out success).
-GROW_SETTINGS = ("train.aug_warmup=0", "train.freeze=encoder")
-NO_WORLD_MODEL = ("model.world_model=false",)
 # The models: the full OSVI-WM, or the paper's no-world-model ablation (one latent action straight into the
-# waypoint head), and each one's default (train, refine, grow) steps. OSVI-WM trains the no-world-model schedule
+# waypoint head), each trained by its pick-and-place recipe (``studio.model.recipes``: the stages' settings over
+# the ``cpu`` preset and their default (train, refine, grow) steps). OSVI-WM trains the no-world-model schedule
 # first, then grows 𝒲 on it (the measured runs: docs/results.md, "Time to policy").
-VARIANTS: tuple[str, ...] = ("osvi-wm", "no-world-model")
-VARIANT_STEPS: dict[str, tuple[int, int, int]] = {
-    "osvi-wm": (1600, 1100, 700),
-    "no-world-model": (1600, 1100, 0),
-}
+VARIANT_RECIPES: dict[str, str] = {"osvi-wm": "pick-place", "no-world-model": "pick-place-no-world-model"}
+VARIANTS: tuple[str, ...] = tuple(VARIANT_RECIPES)
+
+
+def _recipe_steps(name: str) -> tuple[int, int, int]:
+    """The default steps of a recipe's base, refine and grow stages (0 for a stage it does not have)."""
+    steps = {stage.name: stage.steps for stage in RECIPES[name].stages}
+    return steps.get("base", 0), steps.get("refine", 0), steps.get("grow", 0)
+
+
+VARIANT_STEPS: dict[str, tuple[int, int, int]] = {v: _recipe_steps(r) for v, r in VARIANT_RECIPES.items()}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -117,11 +118,10 @@ def schedule(
     return out  # type: ignore[return-value]
 
 
-def stage_models(variant: str, grow_steps: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """Model settings of the train/refine stages and of the grow stage."""
-    if variant == "no-world-model":
-        return NO_WORLD_MODEL, NO_WORLD_MODEL
-    return (NO_WORLD_MODEL if grow_steps > 0 else ()), ()
+def early_overrides(variant: str, grow_steps: int) -> tuple[str, ...]:
+    """Overrides of the recipe's train and refine stages: OSVI-WM without a grow stage trains the full model from
+    the start instead of growing 𝒲 onto stages trained without it."""
+    return ("model.world_model=true",) if variant == "osvi-wm" and grow_steps == 0 else ()
 
 
 def _stage(name: str, times: dict[str, float], fn) -> None:
@@ -143,7 +143,8 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError as err:
         raise SystemExit(f"studio quickstart: {err}") from None
-    early_model, grow_model = stage_models(args.variant, args.grow_steps)
+    early = early_overrides(args.variant, args.grow_steps)
+    recipe = VARIANT_RECIPES[args.variant]
     root = resolve_data_dir(args.data_dir)
     out = Path(args.out) if args.out else root / "runs" / "quickstart"
     common = ["--data-dir", str(root), "--workers", str(args.workers), "--seed", str(args.seed)]
@@ -158,13 +159,15 @@ def run(args: argparse.Namespace) -> int:
     _stage("collect", times, collect)
 
     def train(
-        run_dir: Path, steps: int, seed: int, settings: tuple[str, ...], init: Path | None = None
+        stage: str, run_dir: Path, steps: int, settings: tuple[str, ...], init: Path | None = None
     ) -> int:
         return studio(
             [
                 "train",
-                "--config",
-                "cpu",
+                "--recipe",
+                recipe,
+                "--stage",
+                stage,
                 "--data",
                 str(root),
                 "--out",
@@ -172,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
                 "--steps",
                 str(steps),
                 "--seed",
-                str(seed),
+                str(args.seed),
                 "--threads",
                 str(args.workers),
                 *(["--init", str(init)] if init else []),
@@ -189,18 +192,12 @@ def run(args: argparse.Namespace) -> int:
         return last.parent / "best.pt" if (last.parent / "best.pt").exists() else last
 
     checkpoint = out / "base" / "last.pt"
-    _stage("train", times, lambda: train(out / "base", args.steps, args.seed, BASE_SETTINGS + early_model))
+    _stage("train", times, lambda: train("base", out / "base", args.steps, early))
     if args.refine_steps > 0:
         _stage(
             "refine",
             times,
-            lambda: train(
-                out / "refine",
-                args.refine_steps,
-                args.seed + 1,
-                BASE_SETTINGS + REFINE_SETTINGS + early_model,
-                init=checkpoint,
-            ),
+            lambda: train("refine", out / "refine", args.refine_steps, early, init=checkpoint),
         )
         checkpoint = out / "refine" / "last.pt"
     if args.grow_steps > 0:
@@ -208,13 +205,7 @@ def run(args: argparse.Namespace) -> int:
         _stage(
             "grow",
             times,
-            lambda: train(
-                out / "grow",
-                args.grow_steps,
-                args.seed + 2,
-                BASE_SETTINGS + GROW_SETTINGS + grow_model,
-                init=grown_from,
-            ),
+            lambda: train("grow", out / "grow", args.grow_steps, (), init=grown_from),
         )
         checkpoint = out / "grow" / "last.pt"
     checkpoint = best(checkpoint)

@@ -10,7 +10,8 @@ import torch
 
 from studio.cli import main
 from studio.model.checkpoint import load_checkpoint
-from studio.quickstart import add_arguments, schedule, stage_models
+from studio.model.recipes import recipe
+from studio.quickstart import VARIANT_RECIPES, add_arguments, early_overrides, schedule
 
 pytestmark = pytest.mark.timeout(900)
 
@@ -92,8 +93,14 @@ def test_quickstart_trains_the_full_model_unless_told_otherwise():
     with pytest.raises(ValueError, match="no-world-model variant has none"):
         schedule("no-world-model", None, None, 100)
     # OSVI-WM grows 𝒲 onto stages trained without it, or, with no grow steps, trains it whole from the start.
-    no_wm = ("model.world_model=false",)
-    assert stage_models("osvi-wm", 700) == (no_wm, ()) and stage_models("osvi-wm", 0) == ((), ())
-    assert stage_models("no-world-model", 0) == (no_wm, no_wm)
+    assert early_overrides("osvi-wm", 700) == () and early_overrides("no-world-model", 0) == ()
+    assert early_overrides("osvi-wm", 0) == ("model.world_model=true",)
+    osvi_wm, ablation = (recipe(VARIANT_RECIPES[v]) for v in ("osvi-wm", "no-world-model"))
+    assert [s.name for s in osvi_wm.stages] == ["base", "refine", "grow"]
+    assert [s.name for s in ablation.stages] == ["base", "refine"]
+    assert (
+        osvi_wm.stage("base").model["world_model"] is False
+        and "world_model" not in osvi_wm.stage("grow").model
+    )
     with pytest.raises(SystemExit):
         parser.parse_args(["--variant", "no-such-model"])

@@ -2,7 +2,12 @@
 
     studio train --config cpu|paper|paper-metaworld --data DIR --out RUN_DIR [--steps N] [--seed S]
                  [--set model.field=value train.field=value ...] [--restart] [--init CKPT [--fine-tune]]
-                 [--device cpu]
+                 [--recipe NAME [--stage STAGE]] [--device cpu]
+
+``--recipe NAME --stage STAGE`` trains one stage of a named recipe (:mod:`studio.model.recipes`: ``pick-place``,
+``pick-place-no-world-model``, ``push``, ``metaworld``) instead of a bare preset: the stage's settings, scene, steps
+and seed offset, with ``--init`` naming the checkpoint of the stage it starts from. Each ``--set`` value is read as
+its field's type (``model.world_model=flase`` is refused with one line, not taken as a true string).
 
 Re-running the same command after an interruption resumes from ``RUN_DIR/last.pt`` at the step it reached; a
 different ``--steps`` lengthens or shortens the resumed run (its learning-rate schedule follows the new length),
@@ -28,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from studio.model.config import PRESETS, RunConfig, fine_tune_config, fit_batch, preset
+from studio.model.recipes import RECIPES, stage_config
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,7 +45,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=None, help="seed of every random choice")
     parser.add_argument(
-        "--scene", default="pick_place", help="scene (or split JSON path) that selects the tasks"
+        "--scene",
+        default=None,
+        help="scene (or split JSON path) that selects the tasks (default: the recipe's, else pick_place)",
+    )
+    parser.add_argument(
+        "--recipe",
+        choices=tuple(RECIPES),
+        default=None,
+        help="train one stage of a recipe (studio.model.recipes): its settings over the cpu preset, its steps "
+        "and seed offset (--steps, --seed and --set still apply)",
+    )
+    parser.add_argument(
+        "--stage", default=None, help="with --recipe: the stage to train (default: the first)"
     )
     parser.add_argument(
         "--set",
@@ -140,36 +158,55 @@ def prepare_run(
     root: str,
     *,
     config: str = "cpu",
-    scene: str = "pick_place",
+    scene: str | None = None,
     overrides: list[str] | None = None,
     steps: int | None = None,
     seed: int | None = None,
     init: str | None = None,
     fine_tune: bool = False,
     progress: bool = False,
+    recipe: str | None = None,
+    stage: str | None = None,
 ) -> PreparedRun:
     """The configuration and data of a ``studio train`` run (the CLI and the ``train`` job both start here).
 
     ``fine_tune`` takes the configuration of ``init`` with the fine-tuning schedule for the pairs found
     (:func:`~studio.model.config.fine_tune_config`), otherwise the preset ``config`` for the scene; then
-    ``overrides``, ``steps`` and ``seed``; then a batch larger than the training pairs is lowered to them (a
+    ``overrides``, ``steps`` and ``seed``. A ``recipe`` replaces ``config``: its ``stage`` (default: the first)
+    gives the settings, the scene (unless ``scene`` is given), the default steps and the seed offset, and a stage
+    that starts from an earlier one needs ``init``. Then a batch larger than the training pairs is lowered to them (a
     note says so). Raises :class:`NoTrainingPairs` saying what to record when there is no training pair,
     ``ValueError`` for a bad override or ``init``.
     """
     extra = list(overrides or [])
-    typed: dict[str, Any] = {}
-    if steps is not None:
-        typed["max_steps"] = steps
-    if seed is not None:
-        typed["seed"] = seed
     saved: dict[str, Any] | None = None
-    if fine_tune:
+    if recipe is not None:
+        if fine_tune:
+            raise ValueError("fine-tuning continues a policy with its own settings; it takes no recipe")
+        start, chosen = stage_config(recipe, stage)
+        if chosen.init_from is not None and init is None:
+            raise ValueError(
+                f"stage {chosen.name!r} of recipe {recipe!r} starts from stage {chosen.init_from!r}'s "
+                f"{chosen.init_checkpoint} checkpoint: name it with --init"
+            )
+        scene = scene or RECIPES[recipe].scene
+        steps = chosen.steps if steps is None else steps
+        seed = (start.train.seed if seed is None else seed) + chosen.seed_offset
+    elif stage is not None:
+        raise ValueError("--stage names a stage of a recipe: give the recipe too (--recipe)")
+    elif fine_tune:
         if init is None:
             raise ValueError("fine-tuning starts from a policy: name its checkpoint or policy file (--init)")
         saved = init_config(init)
         start = RunConfig.from_dict(saved)  # the data side: image size, frames, embodiments
     else:
-        start = preset(config, scene_of(scene))
+        start = preset(config, scene_of(scene or "pick_place"))
+    scene = scene or "pick_place"
+    typed: dict[str, Any] = {}
+    if steps is not None:
+        typed["max_steps"] = steps
+    if seed is not None:
+        typed["seed"] = seed
     cfg = start.with_overrides(extra).with_changes(train=typed)
     train_set, val_set = open_splits(root, cfg, scene, progress=progress)
     if len(train_set) == 0:
@@ -199,6 +236,8 @@ def run(args: argparse.Namespace) -> int:
             init=args.init,
             fine_tune=args.fine_tune,
             progress=not args.no_progress,
+            recipe=args.recipe,
+            stage=args.stage,
         )
     except ValueError as exc:
         print(f"studio train: {exc}", file=sys.stderr)
