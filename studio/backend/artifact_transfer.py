@@ -43,6 +43,7 @@ from studio.backend import messages as msg
 from studio.backend.episode_transfer import CHUNK_BYTES
 from studio.backend.job_client import JobClient
 from studio.data.atomic_files import atomic_write, fsync_path
+from studio.data.paths import SHIPPED_POLICY_DIR
 
 #: The holder name of the hub's data directory.
 HUB_HOLDER = "hub"
@@ -87,11 +88,13 @@ class EpisodeFiles(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 class InputManifest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """What a job reads, by content. ``root`` is the data directory of the hub that described it: a spec path
-    inside it means the same path inside a worker's own data directory."""
+    inside it means the same path inside a worker's own data directory. ``shipped`` is where the hub's installation
+    keeps the policies shipped with the studio: a path there means the worker's own copy of that policy."""
 
     root: Annotated[str, msgspec.Meta(min_length=1, max_length=4096)]
     files: Annotated[list[FileRef], msgspec.Meta(max_length=MAX_INPUT_FILES)] = []
     episodes: Annotated[list[EpisodeFiles], msgspec.Meta(max_length=MAX_INPUT_EPISODES)] = []
+    shipped: Annotated[str, msgspec.Meta(max_length=4096)] = ""
 
 
 def blob_key(holder: str, blob: str) -> str:
@@ -478,7 +481,10 @@ class HubArtifacts:
                 )
             )
         manifest = InputManifest(
-            root=str(self.data_dir), files=list(refs.values())[:MAX_INPUT_FILES], episodes=episodes
+            root=str(self.data_dir),
+            files=list(refs.values())[:MAX_INPUT_FILES],
+            episodes=episodes,
+            shipped=str(SHIPPED_POLICY_DIR.resolve()),
         )
         return self.cache.keep_bytes(msgspec.json.encode(manifest))
 
@@ -704,7 +710,10 @@ class WorkerArtifacts:
                 store.add_episode_files(work)
             finally:
                 shutil.rmtree(work, ignore_errors=True)
-        return translate_paths(spec, manifest.root, str(self.data_dir)), manifest.root
+        local = translate_paths(spec, manifest.root, str(self.data_dir))
+        if manifest.shipped:
+            local = translate_paths(local, manifest.shipped, str(SHIPPED_POLICY_DIR.resolve()))
+        return local, manifest.root
 
     def _fetch_to(self, ref: FileRef, dest: Path) -> None:
         self.fetcher.fetch(HUB_HOLDER, ref.blob, max_bytes=min(self.fetcher.max_bytes, ref.size))

@@ -23,6 +23,7 @@ from studio.backend.artifact_transfer import (
     TransferError,
     WorkerArtifacts,
 )
+from studio.data.paths import SHIPPED_POLICY_DIR
 from studio.data.store import EpisodeStore
 
 from .test_episode_transfer import make_recording
@@ -255,6 +256,34 @@ def test_a_manifest_naming_a_file_outside_the_input_dirs_is_refused_before_anyth
                 worker.prepare({"checkpoint": "oracle", "inputs": inputs})
             assert (tmp_path / "worker" / "catalog.sqlite").read_bytes() == b"the worker's own"
             assert not worker.cache.has(blob)
+        finally:
+            worker.close()
+            hub.close()
+
+
+def test_a_shipped_policy_named_by_the_hubs_installation_is_the_workers_own_copy(sessions, tmp_path):
+    hub_s, worker_s = sessions
+    with EpisodeStore(tmp_path / "hub") as hub_store:
+        demo = hub_store.add_episode(make_recording(seed=1), role="expert", source="teleop")
+        hub = HubArtifacts(hub_s, tmp_path / "hub", hub_store)
+        worker = WorkerArtifacts(worker_s, tmp_path / "worker", "sim-1")
+        try:
+            policy = SHIPPED_POLICY_DIR.resolve() / "some-policy.pt"
+            spec = {"checkpoint": str(policy), "expert_episode_id": demo.id, "task": demo.task, "seed": 3}
+            inputs = hub.describe_inputs("plan", spec)
+            assert inputs is not None
+            manifest = msgspec.json.decode(hub.cache.blob_path(inputs).read_bytes(), type=InputManifest)
+            assert manifest.files == [] and manifest.shipped == str(SHIPPED_POLICY_DIR.resolve())
+            # as if the hub's installation were elsewhere: its path is read as this worker's installation
+            moved = msgspec.structs.replace(manifest, shipped="/opt/hub-install/studio/policies")
+            other = hub.cache.keep_bytes(msgspec.json.encode(moved))
+            hub_spec = {
+                **spec,
+                "checkpoint": "/opt/hub-install/studio/policies/some-policy.pt",
+                "inputs": other,
+            }
+            local, _ = worker.prepare(hub_spec)
+            assert local["checkpoint"] == str(policy)
         finally:
             worker.close()
             hub.close()
