@@ -22,9 +22,11 @@ import msgspec
 from studio.backend.job_runner import JobContext
 from studio.backend.messages import ContentId
 from studio.backend.spec_paths import checkpoint_path, inside_data_dir
+from studio.model.recipes import recipe
 
 _Path = Annotated[str, msgspec.Meta(min_length=1, max_length=4096)]
 _Override = Annotated[str, msgspec.Meta(min_length=3, max_length=512)]
+_Name = Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
 
 
 class TrainJobSpec(msgspec.Struct, forbid_unknown_fields=True):
@@ -37,7 +39,10 @@ class TrainJobSpec(msgspec.Struct, forbid_unknown_fields=True):
         overrides: ``section.field=value`` assignments applied to the preset (or the fine-tuning schedule).
         steps: optimiser steps (None: the preset's epochs, or the fine-tuning schedule's length).
         seed: seed of every random choice (None: the preset's).
-        scene: scene (or split file) selecting the training and validation tasks.
+        scene: scene (or split file) selecting the training and validation tasks (None: the recipe's, else
+            pick-and-place).
+        recipe, stage: train one stage of a named recipe (``studio train --recipe --stage``;
+            :mod:`studio.model.recipes`) instead of the preset ``config``.
         device: torch device.
         threads: torch CPU threads (None: torch's default).
         init: a checkpoint or policy file whose weights the run starts from (``studio train --init``).
@@ -52,7 +57,9 @@ class TrainJobSpec(msgspec.Struct, forbid_unknown_fields=True):
     overrides: Annotated[list[_Override], msgspec.Meta(max_length=64)] = []
     steps: Annotated[int, msgspec.Meta(ge=1, le=10_000_000)] | None = None
     seed: Annotated[int, msgspec.Meta(ge=0, le=2**31 - 1)] | None = None
-    scene: _Path = "pick_place"
+    scene: _Path | None = None
+    recipe: _Name | None = None
+    stage: _Name | None = None
     device: Annotated[str, msgspec.Meta(min_length=1, max_length=32)] = "cpu"
     threads: Annotated[int, msgspec.Meta(ge=1, le=1024)] | None = None
     init: _Path | None = None
@@ -62,6 +69,10 @@ class TrainJobSpec(msgspec.Struct, forbid_unknown_fields=True):
     def __post_init__(self) -> None:
         if self.fine_tune and self.init is None:
             raise ValueError("a fine-tuning job names the policy it starts from (init)")
+        if self.recipe is not None:
+            recipe(self.recipe).stage(self.stage)  # raises naming the recipes or stages there are
+        elif self.stage is not None:
+            raise ValueError("a stage names a stage of a recipe: give the recipe too")
 
 
 def parse_spec(spec: dict[str, Any]) -> TrainJobSpec:
@@ -78,7 +89,7 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
     data_dir = inside_data_dir(ctx.data_dir, spec.data_dir, "data_dir", "train")
     out = inside_data_dir(ctx.data_dir, spec.run_dir, "run_dir", "train")
     scene = spec.scene
-    if "/" in scene or scene.endswith(".json"):  # a split file, not a scene name
+    if scene is not None and ("/" in scene or scene.endswith(".json")):  # a split file, not a scene name
         scene = str(inside_data_dir(ctx.data_dir, scene, "split file (scene)", "train"))
     init = None if spec.init is None else checkpoint_path(ctx.data_dir, spec.init, "init", "train")
     import torch
@@ -98,6 +109,8 @@ def run_training_job(ctx: JobContext) -> dict[str, Any]:
         seed=spec.seed,
         init=init,
         fine_tune=spec.fine_tune,
+        recipe=spec.recipe,
+        stage=spec.stage,
     )
     cfg, train_set, val_set = prepared.run, prepared.train_set, prepared.val_set
     if prepared.notes:

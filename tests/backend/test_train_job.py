@@ -70,6 +70,16 @@ def test_spec_is_validated():
         parse_spec({"data_dir": "/d"})
     with pytest.raises(ValueError, match="invalid train job spec"):
         parse_spec({"data_dir": "/d", "run_dir": "/r", "learning_rate": 1})
+    spec = parse_spec(
+        {"data_dir": "/d", "run_dir": "/r", "recipe": "push", "stage": "grow", "init": "b/best.pt"}
+    )
+    assert (spec.recipe, spec.stage, spec.scene) == ("push", "grow", None)
+    with pytest.raises(ValueError, match="unknown recipe 'pusher'"):
+        parse_spec({"data_dir": "/d", "run_dir": "/r", "recipe": "pusher"})
+    with pytest.raises(ValueError, match="no stage 'polish'; its stages: base, grow"):
+        parse_spec({"data_dir": "/d", "run_dir": "/r", "recipe": "push", "stage": "polish"})
+    with pytest.raises(ValueError, match="give the recipe too"):
+        parse_spec({"data_dir": "/d", "run_dir": "/r", "stage": "grow"})
 
 
 def test_train_job_trains_reports_checkpoints_and_cancels(hub, workers, dataset, tmp_path):
