@@ -715,6 +715,10 @@ class WorkerArtifacts:
             local = translate_paths(local, manifest.shipped, str(SHIPPED_POLICY_DIR.resolve()))
         return local, manifest.root
 
+    def as_hub_path(self, value: Any, hub_data_dir: str) -> Any:
+        """``value`` with this data dir's paths (strings, also inside dicts and lists) as the same in the hub's."""
+        return translate_paths(value, str(self.data_dir), hub_data_dir)
+
     def _fetch_to(self, ref: FileRef, dest: Path) -> None:
         self.fetcher.fetch(HUB_HOLDER, ref.blob, max_bytes=min(self.fetcher.max_bytes, ref.size))
         self.cache.place(ref.blob, dest)

@@ -23,16 +23,13 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, Protocol, cast
 
 import zenoh
 
 from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.presence import WorkerPresence
-
-if TYPE_CHECKING:
-    from studio.backend.artifact_transfer import WorkerArtifacts
 
 
 @dataclass(frozen=True)
@@ -175,6 +172,27 @@ def resolve_handlers(
     return handlers, unavailable
 
 
+class JobFiles(Protocol):
+    """How a worker whose data dir is its own gets a job's inputs and hands over its outputs
+    (:class:`studio.backend.artifact_transfer.WorkerArtifacts`)."""
+
+    def prepare(self, spec: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
+        """Fetch the spec's inputs; the spec as this data dir's, and the hub's data dir (None: no inputs)."""
+        ...
+
+    def offer(self, path: str | Path) -> list[str]:
+        """Hand a file (or a directory's files) to the hub's data dir."""
+        ...
+
+    def offer_episode(self, episode_id: str, rollout: Any = None) -> str:
+        """Hand a stored episode (and the rollout it records) to the hub's store."""
+        ...
+
+    def as_hub_path(self, value: Any, hub_data_dir: str) -> Any:
+        """``value`` with this data dir's paths (strings, also inside dicts and lists) as the hub's."""
+        ...
+
+
 class JobCancelled(Exception):
     """Raised by :meth:`JobContext.raise_if_cancelled` once the job has been cancelled."""
 
@@ -283,11 +301,9 @@ class JobContext:
 
     def hub_path(self, path: str | Path) -> str:
         """``path`` of this worker's data dir as the same place in the hub's (unchanged when they are one)."""
-        from studio.backend.artifact_transfer import translate_paths
-
-        if self.hub_data_dir is None or self.data_dir is None:
+        if self.hub_data_dir is None or self._runner.artifacts is None:
             return str(path)
-        return str(translate_paths(str(path), str(Path(self.data_dir).resolve()), self.hub_data_dir))
+        return str(self._runner.artifacts.as_hub_path(str(path), self.hub_data_dir))
 
     def poses(self, frame: msg.PoseFrame) -> None:
         """Stream the poses of a running simulation (latest wins) for live display."""
@@ -316,7 +332,7 @@ class JobRunner:
         handlers: dict[str, Handler],
         *,
         data_dir: Path | None = None,
-        artifacts: WorkerArtifacts | None = None,
+        artifacts: JobFiles | None = None,
         keep_finished: int = 64,
     ):
         self.session = session
@@ -423,10 +439,8 @@ class JobRunner:
             result = handler(ctx)
             if result is not None and not isinstance(result, dict):
                 raise TypeError(f"handler returned {type(result).__name__}, expected a dict or None")
-            if result is not None and ctx.hub_data_dir is not None and ctx.data_dir is not None:
-                from studio.backend.artifact_transfer import translate_paths
-
-                result = translate_paths(result, str(Path(ctx.data_dir).resolve()), ctx.hub_data_dir)
+            if result is not None and ctx.hub_data_dir is not None and self.artifacts is not None:
+                result = self.artifacts.as_hub_path(result, ctx.hub_data_dir)
             state, reason = ("cancelled", ctx.cancel_reason) if ctx.cancelled else ("succeeded", "")
         except JobCancelled as e:
             state, reason = "cancelled", str(e)
