@@ -1,6 +1,7 @@
 """The studio on three "machines" that share no disk: a hub, a trainer and a sim worker as separate processes, each
 with its own data directory, on the bus only. A tiny model is trained on the hub's episodes, then plans and rolls out
-on the sim worker, and a teleop recording lands in the hub's store; every file arrives by content id, byte for byte.
+on the sim worker, and a scripted and a teleop recording land in the hub's store; every file arrives by content id,
+byte for byte.
 
 :func:`run_flow` is the whole scenario; the second test runs it again with the hub, the trainer and the sim worker each
 in its own network namespace (veth pairs to the hub's) over the authenticated bus (``studio bus credentials``: TLS,
@@ -181,13 +182,15 @@ def run_flow(
         wait_worker(directory, "sim-1")
         jobs = ArtifactJobClient(session)  # asks the hub to describe each job's inputs by content id
 
+        def logs() -> str:
+            return "\n".join(p.text() for p in procs)
+
         def finish(kind: str, spec: dict, timeout: float) -> dict:
             status = jobs.submit(kind, spec)
-            assert "inputs" in jobs.status(status.job).spec
+            assert ("inputs" in jobs.status(status.job).spec) == (kind != "expert")  # it reads no file
             with jobs.watch(status.job) as watch:
                 end = watch.wait(timeout=timeout)
-            logs = "\n".join(p.text() for p in procs)
-            assert end is not None and end.state == "succeeded", f"{kind}: {end}\n{logs}"
+            assert end is not None and end.state == "succeeded", f"{kind}: {end}\n{logs()}"
             result = jobs.result(status.job)
             assert result is not None
             return result.result
@@ -247,6 +250,14 @@ def run_flow(
             for f in (dirs["sim"] / "rollouts" / record.id).iterdir():
                 assert sha256(Path(record.path) / f.name) == sha256(f)
 
+        # A scripted demonstration stored by the sim worker is added to the hub's store byte for byte.
+        scripted = finish("expert", {"task": RED, "seed": 5, "robot": "sawyer"}, 300)
+        with EpisodeStore(dirs["hub"]) as hub_store, EpisodeStore(dirs["sim"]) as sim_store:
+            assert hub_store.get(scripted["episode_id"]).source == "scripted"
+            for name in ("meta.json", "frames.mp4", "arrays.npz"):
+                ours = sim_store.episode_dir(scripted["episode_id"]) / name
+                assert sha256(hub_store.episode_dir(scripted["episode_id"]) / name) == sha256(ours)
+
         # A teleop recording on the sim worker lands in the hub's store, not the worker's.
         with TeleopClient(session, "sim-1") as client:
             client.open("pick_place", "sawyer", RED, seed=2)
@@ -255,7 +266,7 @@ def run_flow(
             for _ in range(40):  # well over the shortest recording the store takes
                 assert client.wait_ack(client.set_target(start + np.array([0.0, 0.0, 0.05]), 0.0)) is not None
             saved = client.stop_recording(timeout=120)
-        assert isinstance(saved, msg.EpisodeSaved) and saved.via == "bus"
+        assert isinstance(saved, msg.EpisodeSaved) and saved.via == "bus", f"{saved}\n{logs()}"
         with EpisodeStore(dirs["hub"]) as hub_store, EpisodeStore(dirs["sim"]) as sim_store:
             assert hub_store.catalog.get_episode(saved.episode) is not None
             assert sim_store.catalog.get_episode(saved.episode) is None
