@@ -3,9 +3,21 @@
 The ``slow`` marker (pyproject.toml: "takes more than ~20 s") lets ``./run test -m "not slow"`` be a quick
 run. So that the marker keeps up with the tests, the terminal summary lists tests that took longer than that
 (setup and teardown included) without it. It is a hint only: no test ever fails because of its duration.
+
+A test that hangs where pytest-timeout's signal cannot reach it (a native call that holds the interpreter
+lock never lets the Python handler run) would stall the whole run silently: pyproject.toml arms pytest's
+faulthandler watchdog (in C) past the longest per-test timeout, which prints every thread's stack and ends
+the run, so the log says where it stuck.
+
+``./run test`` runs the suite in two processes, one after the other: everything but the browser tests, then the
+browser tests (``STUDIO_TEST_PART=rest|browser`` selects the part here). A full run leaves, after 800 tests,
+a process whose state the browser tests should not inherit: they start their app, workers and Chromium in a
+process of their own, as a person's studio would.
 """
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 import pytest
@@ -14,6 +26,22 @@ SLOW_S = 20.0
 
 _seconds: dict[str, float] = {}
 _unmarked: set[str] = set()
+
+
+PART_VARIABLE = "STUDIO_TEST_PART"
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    part = os.environ.get(PART_VARIABLE, "")
+    if part not in ("", "rest", "browser"):
+        raise pytest.UsageError(f"{PART_VARIABLE} must be 'rest' or 'browser', not {part!r}")
+    if not part:
+        return
+    keep = [item for item in items if (item.get_closest_marker("browser") is not None) == (part == "browser")]
+    dropped = [item for item in items if item not in keep]
+    if dropped:
+        config.hook.pytest_deselected(items=dropped)
+        items[:] = keep
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
