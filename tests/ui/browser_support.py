@@ -168,9 +168,15 @@ def stop_and_save(page, tab) -> None:
     """Click Stop & save until the panel took it (no longer recording, or saving), then wait for the store.
     Re-clicking is safe: a Stop & save after the first one is a no-op."""
     tp = tab.teleop
-    click_until_done(page.get_by_role("button", name="Stop & save"),
-                      lambda: wait(lambda: not tp.status.content.startswith("Recording"), 30,
-                                    "Stop & save to be taken", lambda: teleop_state(tab)))  # fmt: skip
+    click_until_done(
+        page.get_by_role("button", name="Stop & save"),
+        lambda: wait(
+            lambda: not tp.status.content.startswith("Recording"),
+            30,
+            "Stop & save to be taken",
+            lambda: teleop_state(tab),
+        ),
+    )
     wait(
         lambda: tp.status.content.startswith("Saved"),
         120,

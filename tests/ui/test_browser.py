@@ -35,12 +35,27 @@ HELD_OUT = "pick_place/bar->blue"
 PUSH_HELD_OUT = "push/blue-backward"
 TRAIN_TASKS = ("pick_place/cube->red", "pick_place/cube->green")
 TINY = [
-    "model.image_size=[48, 64]", "model.n_expert_frames=4", "model.n_agent_frames=3", "model.encoder_stages=2",
-    "model.state_channels=16", "model.action_blocks=1", "model.action_heads=2", "model.action_attn_dim=16",
-    "model.action_mlp_dim=32", "model.wm_blocks=1", "model.wm_heads=2", "model.wm_width=32", "model.wm_mlp_dim=64",
-    "model.head_hidden=64", "train.batch_size=4", "train.num_workers=0", "train.log_every=1",
-    "train.checkpoint_every=2", "train.val_every=1000", "train.pairs_per_expert=2",
-]  # fmt: skip
+    "model.image_size=[48, 64]",
+    "model.n_expert_frames=4",
+    "model.n_agent_frames=3",
+    "model.encoder_stages=2",
+    "model.state_channels=16",
+    "model.action_blocks=1",
+    "model.action_heads=2",
+    "model.action_attn_dim=16",
+    "model.action_mlp_dim=32",
+    "model.wm_blocks=1",
+    "model.wm_heads=2",
+    "model.wm_width=32",
+    "model.wm_mlp_dim=64",
+    "model.head_hidden=64",
+    "train.batch_size=4",
+    "train.num_workers=0",
+    "train.log_every=1",
+    "train.checkpoint_every=2",
+    "train.val_every=1000",
+    "train.pairs_per_expert=2",
+]
 
 # Tests that share the app are slow one by one (marked); the fast ones stay in `-m "not slow"` runs.
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(420)]
@@ -54,8 +69,20 @@ def test_serve_prints_its_url_and_waits_for_external_workers(tmp_path):
 
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     bus_port = bus.free_loopback_port()
-    cmd = [sys.executable, "-m", "studio.cli", "serve", "--port", str(bus.free_loopback_port()), "--workers", "none",
-           "--data-dir", str(tmp_path / "data"), "--listen", bus.loopback_endpoint(bus_port)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "studio.cli",
+        "serve",
+        "--port",
+        str(bus.free_loopback_port()),
+        "--workers",
+        "none",
+        "--data-dir",
+        str(tmp_path / "data"),
+        "--listen",
+        bus.loopback_endpoint(bus_port),
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
         url, line = None, ""
@@ -137,10 +164,18 @@ def data_dir(tmp_path_factory):
         out.plans[0].guidance_gain, out.plans[0].guided = 1.6, True
         with store.catalog.transaction():
             store.catalog.add_run(RunRecord(id="fixture-run", status="done"))
-            store.catalog.add_checkpoint(CheckpointRecord(id="fixture-run/best", run_id="fixture-run", step=1,
-                                                          path=str(root / "missing.pt")))  # fmt: skip
-        store_rollout(store, out, expert_episode_id=None, checkpoint_id="fixture-run/best",
-                      extra={"checkpoint": str(root / "missing.pt")})  # fmt: skip
+            store.catalog.add_checkpoint(
+                CheckpointRecord(
+                    id="fixture-run/best", run_id="fixture-run", step=1, path=str(root / "missing.pt")
+                )
+            )
+        store_rollout(
+            store,
+            out,
+            expert_episode_id=None,
+            checkpoint_id="fixture-run/best",
+            extra={"checkpoint": str(root / "missing.pt")},
+        )
     return root
 
 
@@ -326,9 +361,25 @@ def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots
     im = tab.imitate
     run = studio.data_dir / "runs" / tab.train.job_id
     # The latent decoder, trained as a user would (its own process: this one never imports torch).
-    cmd = [sys.executable, "-m", "studio.cli", "train-decoder", "--model", str(run / "last.pt"),
-           "--data", str(studio.data_dir), "--out", str(run / "decoder"), "--steps", "2", "--batch-size", "2",
-           "--scene", str(run / "split.json"), "--no-progress"]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "studio.cli",
+        "train-decoder",
+        "--model",
+        str(run / "last.pt"),
+        "--data",
+        str(studio.data_dir),
+        "--out",
+        str(run / "decoder"),
+        "--steps",
+        "2",
+        "--batch-size",
+        "2",
+        "--scene",
+        str(run / "split.json"),
+        "--no-progress",
+    ]
     done = subprocess.run(
         cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"}
     )
@@ -407,13 +458,21 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     cmp.seed.value = 1
     ui.click(page.get_by_role("button", name="Start", exact=True))
     job = ui.wait(lambda: cmp.job, 30, "the compare job")
-    ui.wait(lambda: job.progress is not None and "episode 1 of 2" in job.progress.message, 180, "episode 1 of 2",
-          lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}")  # fmt: skip
+    ui.wait(
+        lambda: job.progress is not None and "episode 1 of 2" in job.progress.message,
+        180,
+        "episode 1 of 2",
+        lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}",
+    )
     with contextlib.suppress(PlaywrightTimeout):  # the page may already show the end: a screenshot is no test
         page.get_by_text(re.compile(r"episode \d of 2")).first.wait_for(timeout=20_000)
     ui.shot(page, shots / "compare-running.png")
-    ui.wait(lambda: "finished:" in cmp.status.content, 180, "the comparison to finish",
-          lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}")  # fmt: skip
+    ui.wait(
+        lambda: "finished:" in cmp.status.content,
+        180,
+        "the comparison to finish",
+        lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}",
+    )
     page.get_by_text("episodes in").first.wait_for(timeout=60_000)
     assert len(cmp.rows) == 2 and all(r.difference == "A only" for r in cmp.rows), cmp.table.content
     assert (
@@ -456,8 +515,14 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     # The same rows again from the catalog: the comparison's two stored evaluations, compared without running.
     ran = [r.to_dict() for r in cmp.rows]
     ui.click(page.get_by_text("Stored evaluations"))
-    ui.wait(lambda: cmp.eval_a.value.startswith(job.result["eval_ids"][0] + " ")
-          and cmp.eval_b.value.startswith(job.result["eval_ids"][1] + " "), 20, "the comparison's evaluations")  # fmt: skip
+    ui.wait(
+        lambda: (
+            cmp.eval_a.value.startswith(job.result["eval_ids"][0] + " ")
+            and cmp.eval_b.value.startswith(job.result["eval_ids"][1] + " ")
+        ),
+        20,
+        "the comparison's evaluations",
+    )
     cmp.rows = []
     ui.click_until(page, page.get_by_role("button", name="Compare stored rollouts"), "2 shared episodes")
     assert [r.to_dict() for r in cmp.rows] == ran
@@ -528,12 +593,23 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
 
     # Train: the active-policy choice is for the scene chosen there; another scene's policy is refused.
     ui.open_tab(page, "Train", "Held out (never trained on)")
-    ui.choose(page, "Scene", "push",
-            lambda: train.scene.value == "push" and "plans **push** tasks" in train.active_note.content,
-            "the push policy in Train", lambda: train.active_note.content)  # fmt: skip
+    ui.choose(
+        page,
+        "Scene",
+        "push",
+        lambda: train.scene.value == "push" and "plans **push** tasks" in train.active_note.content,
+        "the push policy in Train",
+        lambda: train.active_note.content,
+    )
     assert train.active.value == push.label and "(shipped)" in train.active_note.content
-    ui.choose(page, "Active policy", re.compile(r"^shipped policy pick-place-cpu"), lambda: "✘" in train.active_note.content,
-            "the refusal", lambda: train.active_note.content)  # fmt: skip
+    ui.choose(
+        page,
+        "Active policy",
+        re.compile(r"^shipped policy pick-place-cpu"),
+        lambda: "✘" in train.active_note.content,
+        "the refusal",
+        lambda: train.active_note.content,
+    )
     assert "`default/pick-place-cpu` was trained on pick_place tasks: it does not plan push tasks" in (
         train.active_note.content
     )
@@ -546,13 +622,25 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
     # Imitate: the policy line follows the selected task's scene.
     ui.open_tab(page, "Imitate", "Choose a")
     im.task.value = HELD_OUT + " (held-out)"
-    ui.wait(lambda: f"**pick_place** tasks: `{pick.id}`" in im.policy.content, 20, "the pick-and-place policy line",
-          lambda: im.policy.content)  # fmt: skip
+    ui.wait(
+        lambda: f"**pick_place** tasks: `{pick.id}`" in im.policy.content,
+        20,
+        "the pick-and-place policy line",
+        lambda: im.policy.content,
+    )
     im.task.value = PUSH_HELD_OUT + " (held-out)"
-    ui.wait(lambda: f"**push** tasks: `{push.id}`" in im.policy.content, 20, "the push policy line",
-          lambda: im.policy.content)  # fmt: skip
-    ui.wait(lambda: push.summary and push.summary in im.policy_details.content, 20,
-            "its measured results one fold away", lambda: im.policy_details.content)  # fmt: skip
+    ui.wait(
+        lambda: f"**push** tasks: `{push.id}`" in im.policy.content,
+        20,
+        "the push policy line",
+        lambda: im.policy.content,
+    )
+    ui.wait(
+        lambda: push.summary and push.summary in im.policy_details.content,
+        20,
+        "its measured results one fold away",
+        lambda: im.policy_details.content,
+    )
     page.get_by_text("default/push-cpu").first.wait_for(timeout=30_000)
     im.seed.value = 3
     before_demo = im.expert_job
@@ -565,8 +653,12 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
     ui.click(page.get_by_role("button", name="Plan", exact=True))
     job = ui.wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
     assert job.spec["checkpoint"] == push.path and job.spec["task"] == PUSH_HELD_OUT
-    ui.wait(lambda: job.result is not None and im.latent_strip.visible, 120, "the decoded latent trajectory",
-          lambda: im.status.content)  # fmt: skip
+    ui.wait(
+        lambda: job.result is not None and im.latent_strip.visible,
+        120,
+        "the decoded latent trajectory",
+        lambda: im.status.content,
+    )
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert job.result["latent_images"] > 0 and im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     assert im.plan_wps[2, 1] - im.plan_wps[1, 1] < -0.1, f"a backward push: {im.plan_wps}"
@@ -609,8 +701,13 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     job = studio.jobs.submit("expert", {"task": PUSH_HELD_OUT, "seed": 1003, "robot": "hand"})
     ui.wait(lambda: job.terminal and job.result, 120, "the hand's demonstration", lambda: job.status)
     hand = studio.store.get(job.result["episode_id"])
-    assert (hand.task, hand.embodiment, hand.role, hand.height, hand.width) == (PUSH_HELD_OUT, "human", "expert",
-                                                                                240, 320)  # fmt: skip
+    assert (hand.task, hand.embodiment, hand.role, hand.height, hand.width) == (
+        PUSH_HELD_OUT,
+        "human",
+        "expert",
+        240,
+        320,
+    )
     video = tmp_path / "hand-push.mp4"
     export_episode_video(studio.store, hand.id, video, size=(180, 240), fps=24.0)
     info = probe_video(video)
@@ -622,8 +719,14 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
 
     # Upload it as a user does: the task shown, the file, the filmstrip, Save.
     ui.open_tab(page, "Upload", "Upload a video")
-    ui.choose(page, "Task shown", PUSH_HELD_OUT, lambda: upload.task.value == PUSH_HELD_OUT, "the task shown",
-            lambda: upload.task.value)  # fmt: skip
+    ui.choose(
+        page,
+        "Task shown",
+        PUSH_HELD_OUT,
+        lambda: upload.task.value == PUSH_HELD_OUT,
+        "the task shown",
+        lambda: upload.task.value,
+    )
     before = {m.id for m in studio.store.episodes(source="upload")}
     page.locator("input[type=file]").first.set_input_files(str(video))
     ui.wait(lambda: upload.pending is not None, 90, "the upload to be decoded", lambda: upload.status.content)
@@ -644,10 +747,23 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     ui.wait(
         lambda: option in im.demo.options, 30, "the upload among the demonstrations", lambda: im.demo.options
     )
-    ui.choose(page, "Demonstration", option, lambda: im.demo_id() == up.id, "the upload to be selected",
-            lambda: im.demo.value)  # fmt: skip
-    ui.wait(lambda: f"**push** tasks: `{push.id}` (learnt from human demonstrations, like this one)"
-          in im.policy.content, 20, "the policy line of a human demonstration", lambda: im.policy.content)  # fmt: skip
+    ui.choose(
+        page,
+        "Demonstration",
+        option,
+        lambda: im.demo_id() == up.id,
+        "the upload to be selected",
+        lambda: im.demo.value,
+    )
+    ui.wait(
+        lambda: (
+            f"**push** tasks: `{push.id}` (learnt from human demonstrations, like this one)"
+            in im.policy.content
+        ),
+        20,
+        "the policy line of a human demonstration",
+        lambda: im.policy.content,
+    )
     page.get_by_text("default/push-human-demos").first.wait_for(timeout=30_000)
     im.seed.value = 3
     before_plan = im.plan_job
@@ -663,8 +779,11 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     ui.shot(page, shots / "imitate-upload-expert-frames.png", scroll_to="Expert frames the model sees")
     im.speed.value = "as fast as possible"
     ui.click(page.get_by_role("button", name="Execute", exact=True))
-    rollout = ui.wait(lambda: im.rollout is not None and im.rollout.spec.get("expert_episode_id") == up.id and
-                    im.rollout, 30, "the rollout of the upload")  # fmt: skip
+    rollout = ui.wait(
+        lambda: im.rollout is not None and im.rollout.spec.get("expert_episode_id") == up.id and im.rollout,
+        30,
+        "the rollout of the upload",
+    )
     assert rollout.spec["checkpoint_id"] == push.id
     page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
     result = ui.wait(lambda: rollout.result, 30, "the rollout's result")
@@ -686,8 +805,14 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     tab = ui.tab(studio)
     tp, im = tab.teleop, tab.imitate
     ui.open_tab(page, "Teleop", "Drag the gizmo")
-    ui.choose(page, "Scene", "metaworld", lambda: tp.info is not None and tp.info.scene == "metaworld",
-            "the Meta-World session to open", timeout=120)  # fmt: skip
+    ui.choose(
+        page,
+        "Scene",
+        "metaworld",
+        lambda: tp.info is not None and tp.info.scene == "metaworld",
+        "the Meta-World session to open",
+        timeout=120,
+    )
     ui.wait(
         lambda: "ready" in tp.status.content and tp.info.task in tp.status.content, 60, "the session's status"
     )
@@ -696,8 +821,12 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     assert task.startswith("metaworld/")
     # The live camera preview shows Meta-World's corner view (a black background, mean ~58), not the tabletop it
     # showed before (mean ~174), which it once kept showing for a while under the "(live)" label.
-    ui.wait(lambda: 5 < float(np.asarray(tp.preview.image).mean()) < 120, 30, "the Meta-World camera preview",
-          lambda: f"preview mean {float(np.asarray(tp.preview.image).mean()):.1f}")  # fmt: skip
+    ui.wait(
+        lambda: 5 < float(np.asarray(tp.preview.image).mean()) < 120,
+        30,
+        "the Meta-World camera preview",
+        lambda: f"preview mean {float(np.asarray(tp.preview.image).mean()):.1f}",
+    )
     time.sleep(1.0)
     ui.shot(page, shots / "teleop-metaworld.png")
     assert ui.colours(shots / "teleop-metaworld.png") > 300, "the Meta-World scene looks blank"
@@ -709,12 +838,20 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     for i in range(1, 61):  # the gizmo's drag callback, as the browser reaches it
         tp.move_to(start + (goal - start) * i / 60)
         time.sleep(1 / 60)
-    ui.wait(lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.02, 20,
-          "the Sawyer to follow the drag")  # fmt: skip
+    ui.wait(
+        lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.02,
+        20,
+        "the Sawyer to follow the drag",
+    )
     ui.stop_and_save(page, tab)
     (new,) = [m for m in studio.store.episodes() if m.id not in before]
-    assert (new.scene, new.task, new.source, new.role, new.embodiment) == ("metaworld", task, "teleop", "expert",
-                                                                           "sawyer")  # fmt: skip
+    assert (new.scene, new.task, new.source, new.role, new.embodiment) == (
+        "metaworld",
+        task,
+        "teleop",
+        "expert",
+        "sawyer",
+    )
     _, _, arrays = studio.store.load_arrays(new.id)
     assert np.linalg.norm(arrays["ee_pos_world"][-1] - arrays["ee_pos_world"][0]) > 0.05
 
@@ -724,8 +861,12 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     # this recording (the pick-and-place policy chosen earlier never plans another scene's task).
     mw = studio.runs.shipped_for("metaworld")
     assert mw is not None and mw.id == "default/metaworld-cpu" and mw.scene == "metaworld"
-    ui.wait(lambda: f"**metaworld** tasks: `{mw.id}` (learnt from sawyer demonstrations" in im.policy.content, 20,
-          "the Meta-World policy line", lambda: im.policy.content)  # fmt: skip
+    ui.wait(
+        lambda: f"**metaworld** tasks: `{mw.id}` (learnt from sawyer demonstrations" in im.policy.content,
+        20,
+        "the Meta-World policy line",
+        lambda: im.policy.content,
+    )
     ui.wait(
         lambda: any(o.startswith(new.id) for o in im.demo.options),
         20,
@@ -769,8 +910,10 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     shown = (
         ins.replay
     )  # an earlier test may have opened it: wait for this Open's replay (it resets the timeline)
-    ui.click_until_done(page.get_by_role("button", name="Open", exact=True).first,
-                      lambda: ui.wait(lambda: ins.replay is not shown and ins.record.id == failed.id, 90, "the replay"))  # fmt: skip
+    ui.click_until_done(
+        page.get_by_role("button", name="Open", exact=True).first,
+        lambda: ui.wait(lambda: ins.replay is not shown and ins.record.id == failed.id, 90, "the replay"),
+    )
     # A click repeated because the first open was slow opens the rollout again later, resetting the timeline to
     # step 0: wait until no open is queued before moving it.
     ui.wait(lambda: "opening the rollout" not in tab.actions, 120, "every queued Open", lambda: tab.actions)
@@ -781,8 +924,12 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     before = {m.id for m in studio.store.episodes()}
     assert "opening the rollout" not in tab.actions and f"Step {k} of" in ins.plan_info.content
     ui.click_until(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
-    ui.wait(lambda: tp._recording and tab.mode == "teleop" and tp.info.robot == "panda", 60, "the fork session",
-          lambda: ui.teleop_state(tab))  # fmt: skip
+    ui.wait(
+        lambda: tp._recording and tab.mode == "teleop" and tp.info.robot == "panda",
+        60,
+        "the fork session",
+        lambda: ui.teleop_state(tab),
+    )
     assert (tp.info.task, tp.info.seed) == (failed.task, failed.seed)
     # A pose of the forked session. Nothing commands the arm yet, so from the restored tick it moves as the
     # rollout's physics state carries it (the arm was moving at tick k): exactly as a local restore stepped on
@@ -797,8 +944,9 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
         np.testing.assert_allclose(env.ee_pos, ins.replay.arrays["ee_pos_world"][k], atol=2e-3)
         for _ in range(first.step - k):
             env.step(env.target, env.gripper_cmd)
-        np.testing.assert_allclose(first.ee_pos, env.ee_pos, atol=1e-6,
-                                   err_msg=f"step {first.step}; {ui.teleop_state(tab)}")  # fmt: skip
+        np.testing.assert_allclose(
+            first.ee_pos, env.ee_pos, atol=1e-6, err_msg=f"step {first.step}; {ui.teleop_state(tab)}"
+        )
     ui.shot(page, shots / "fork-restored.png")
 
     # The correction a person would drag: above the bar, down, grasp, up, over the blue target, down, release.
@@ -815,8 +963,12 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
             tp.gizmo.position = p
             tp.move_to(p)
             time.sleep(1 / 60)
-        ui.wait(lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.01, 20,
-              f"the arm to reach {np.round(goal, 3)}", lambda: ui.teleop_state(tab))  # fmt: skip
+        ui.wait(
+            lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.01,
+            20,
+            f"the arm to reach {np.round(goal, 3)}",
+            lambda: ui.teleop_state(tab),
+        )
 
     drag(grasp[:3] + np.array([0.0, 0.0, 0.1]))
     drag(grasp[:3], 1.0)
@@ -832,12 +984,24 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     # The sim worker dies while the bar is held.
     (sim,) = [p for p in studio.embedded.processes if p.kind == "sim"]
     sim.process.send_signal(signal.SIGKILL)
-    ui.wait(lambda: "The sim worker was lost mid-recording" in tp.status.content or tp.client is None, 60,
-          "the loss to be noticed", lambda: ui.teleop_state(tab))  # fmt: skip
+    ui.wait(
+        lambda: "The sim worker was lost mid-recording" in tp.status.content or tp.client is None,
+        60,
+        "the loss to be noticed",
+        lambda: ui.teleop_state(tab),
+    )
     held_steps = dying.latest_pose().step + offset  # recorded when the worker's last pose left it
-    ui.wait(lambda: tp._recording and tp.client is not None and tp.client.worker != sim.worker
-          and tp.status.content.startswith("Continuing the interrupted recording"), 180,
-          "the recording to continue on the restarted worker", lambda: ui.teleop_state(tab))  # fmt: skip
+    ui.wait(
+        lambda: (
+            tp._recording
+            and tp.client is not None
+            and tp.client.worker != sim.worker
+            and tp.status.content.startswith("Continuing the interrupted recording")
+        ),
+        180,
+        "the recording to continue on the restarted worker",
+        lambda: ui.teleop_state(tab),
+    )
     resumed = tp.client.state.wait_until(lambda s: s.recorded_steps > 0, 10).recorded_steps
     # Draft chunks leave every 0.1 s (5 ticks): at most that and the chunk in flight are lost, and a tick the dead
     # worker published no pose of can only be one sent in the same instant.
@@ -854,13 +1018,24 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     ui.wait(
         lambda: tp.success.value, 10, "the task's check to see the bar placed", lambda: ui.teleop_state(tab)
     )
-    ui.click_until_done(page.get_by_role("button", name="Stop & save the fork"),
-                      lambda: ui.wait(lambda: tp.status.content.startswith("Saved"), 120, "the fork to be stored",
-                                    lambda: ui.teleop_state(tab)))  # fmt: skip
+    ui.click_until_done(
+        page.get_by_role("button", name="Stop & save the fork"),
+        lambda: ui.wait(
+            lambda: tp.status.content.startswith("Saved"),
+            120,
+            "the fork to be stored",
+            lambda: ui.teleop_state(tab),
+        ),
+    )
     (new,) = [m for m in studio.store.episodes() if m.id not in before]
     assert new.extra["forked_from"] == {"rollout": failed.id, "step": k, "episode": failed.episode_id}
-    assert (new.role, new.embodiment, new.task, new.seed, new.success) == ("agent", "panda", failed.task,
-                                                                             failed.seed, True)  # fmt: skip
+    assert (new.role, new.embodiment, new.task, new.seed, new.success) == (
+        "agent",
+        "panda",
+        failed.task,
+        failed.seed,
+        True,
+    )
     _, _, arrays = studio.store.load_arrays(new.id)
     _, _, rolled = studio.store.load_arrays(failed.episode_id)
     np.testing.assert_array_equal(arrays["qpos"][: k + 1], rolled["qpos"][: k + 1])

@@ -157,8 +157,10 @@ def test_a_checkpoint_of_another_scene_is_refused_not_run(tmp_path):
     data = tmp_path / "data"
     reg = RunRegistry(data, policy_dir=policies)
     reg.set_active("default/push-cpu", "push")
-    with pytest.raises(SceneMismatch, match="`default/pick-place-cpu` was trained on pick_place tasks: it does not "
-                       "plan push tasks"):  # fmt: skip
+    with pytest.raises(
+        SceneMismatch,
+        match="`default/pick-place-cpu` was trained on pick_place tasks: it does not plan push tasks",
+    ):
         reg.set_active("default/pick-place-cpu", "push")
     assert reg.active("push").id == "default/push-cpu", "the refused choice changed nothing"
     with pytest.raises(SceneMismatch, match="does not say which scene it was trained on"):

@@ -17,8 +17,16 @@ def test_every_visual_geom_of_the_scenes_becomes_a_mesh():
         for g in geometry.geoms:
             mesh = geom_mesh(g, geometry.meshes)
             assert mesh is not None and len(mesh.faces) > 0, (scene, g.type)
-    box = msg.GeomSpec(body=0, type="box", group=0, size=(0.1, 0.2, 0.3), pos=(0, 0, 0), quat=(1, 0, 0, 0),
-                       rgba=(1, 1, 1, 1), mesh=-1)  # fmt: skip
+    box = msg.GeomSpec(
+        body=0,
+        type="box",
+        group=0,
+        size=(0.1, 0.2, 0.3),
+        pos=(0, 0, 0),
+        quat=(1, 0, 0, 0),
+        rgba=(1, 1, 1, 1),
+        mesh=-1,
+    )
     np.testing.assert_allclose(geom_mesh(box, ()).extents, [0.2, 0.4, 0.6])
     hfield = msg.GeomSpec(**{**{f: getattr(box, f) for f in box.__struct_fields__}, "type": "hfield"})
     assert geom_mesh(hfield, ()) is None
@@ -70,10 +78,18 @@ class _FakeClient:
 
 
 def _two_boxes() -> msg.SceneGeometry:
-    box = dict(type="box", group=0, size=(0.02, 0.02, 0.02), pos=(0, 0, 0), quat=(1, 0, 0, 0), rgba=(1, 0, 0, 1),
-               mesh=-1)  # fmt: skip
-    return msg.SceneGeometry(body_names=("a", "b"), geoms=(msg.GeomSpec(body=0, **box), msg.GeomSpec(body=1, **box)),
-                             meshes=())  # fmt: skip
+    box = dict(
+        type="box",
+        group=0,
+        size=(0.02, 0.02, 0.02),
+        pos=(0, 0, 0),
+        quat=(1, 0, 0, 0),
+        rgba=(1, 0, 0, 1),
+        mesh=-1,
+    )
+    return msg.SceneGeometry(
+        body_names=("a", "b"), geoms=(msg.GeomSpec(body=0, **box), msg.GeomSpec(body=1, **box)), meshes=()
+    )
 
 
 def test_pose_updates_send_visible_motion_only_and_never_lose_slow_drift():
@@ -112,10 +128,21 @@ def test_heavy_meshes_are_decimated_to_the_budget_keeping_their_shape():
     from studio.ui import scene_view
 
     sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.05)  # 20,480 faces
-    spec = msg.MeshSpec(name="ball", vertices=sphere.vertices.astype("<f4").tobytes(),
-                        faces=sphere.faces.astype("<i4").tobytes())  # fmt: skip
-    geom = msg.GeomSpec(body=0, type="mesh", group=0, size=(0, 0, 0), pos=(0, 0, 0), quat=(1, 0, 0, 0),
-                        rgba=(1, 1, 1, 1), mesh=0)  # fmt: skip
+    spec = msg.MeshSpec(
+        name="ball",
+        vertices=sphere.vertices.astype("<f4").tobytes(),
+        faces=sphere.faces.astype("<i4").tobytes(),
+    )
+    geom = msg.GeomSpec(
+        body=0,
+        type="mesh",
+        group=0,
+        size=(0, 0, 0),
+        pos=(0, 0, 0),
+        quat=(1, 0, 0, 0),
+        rgba=(1, 1, 1, 1),
+        mesh=0,
+    )
     full = scene_view.geom_mesh(geom, (spec,))
     light = scene_view.geom_mesh(geom, (spec,), max_faces=1000)
     assert len(full.faces) == 20480 and 500 <= len(light.faces) <= 1000

@@ -96,8 +96,11 @@ def test_a_demonstration_is_imitated_by_the_shipped_policy_that_learnt_from_its_
             (policies / f"{name}.json").write_text(json.dumps({"summary": "", "demonstrators": listed}))
     reg = RunRegistry(tmp_path / "data", policy_dir=policies)
     by_id = {c.id: c.demonstrators for c in reg.default_policies()}
-    assert by_id == {"default/push-cpu": ("sawyer",), "default/push-human-demos": ("human",),
-                     "default/push-panda-demos": ("panda",)}  # fmt: skip
+    assert by_id == {
+        "default/push-cpu": ("sawyer",),
+        "default/push-human-demos": ("human",),
+        "default/push-panda-demos": ("panda",),
+    }
     demo = SimpleNamespace(value="(none)")
     panel = SimpleNamespace(app=SimpleNamespace(runs=reg), demo=demo)
     panel.demonstrator = lambda: ImitatePanel.demonstrator(panel)
@@ -106,8 +109,12 @@ def test_a_demonstration_is_imitated_by_the_shipped_policy_that_learnt_from_its_
     for value in ("(none)", "e1 · upload · human", "e2 · scripted · panda", "e3 · teleop · sawyer"):
         demo.value = value
         chosen[panel.demonstrator()] = panel.policy_for("push/blue-backward", panel.demonstrator()).id
-    assert chosen == {None: "default/push-cpu", "human": "default/push-human-demos",
-                      "panda": "default/push-panda-demos", "sawyer": "default/push-cpu"}  # fmt: skip
+    assert chosen == {
+        None: "default/push-cpu",
+        "human": "default/push-human-demos",
+        "panda": "default/push-panda-demos",
+        "sawyer": "default/push-cpu",
+    }
     demo.value = "e1 · upload · human"
     assert ImitatePanel.policy_text(panel, "push/x", "human") == (
         "Policy for **push** tasks: `default/push-human-demos` (learnt from human demonstrations, like this one)"
@@ -133,13 +140,22 @@ def test_a_forked_episode_says_where_it_came_from():
 
 
 def test_a_compared_rollout_says_what_it_does_at_each_step_and_holds_its_end():
-    record = SimpleNamespace(success=False, failure_stage="place", extra={"stage_ticks": {"reached": 40, "grasped": 60,
-                                                                                          "placed": None}})  # fmt: skip
+    record = SimpleNamespace(
+        success=False,
+        failure_stage="place",
+        extra={"stage_ticks": {"reached": 40, "grasped": 60, "placed": None}},
+    )
     replay = SimpleNamespace(num_steps=100, frame_steps=np.array([0, 50, 99]))
     frames = np.arange(3).reshape(3, 1, 1, 1) * np.ones((3, 2, 2, 3), np.uint8)
     side = OpenedRollout("A", "ck", record, replay, frames, np.array([0, 70]))
-    assert [side.short(s) for s in (0, 40, 59, 60, 99, 150)] == ["reaching", "grasping", "grasping", "placing",
-                                                               "ended: failed at place", "ended: failed at place"]  # fmt: skip
+    assert [side.short(s) for s in (0, 40, 59, 60, 99, 150)] == [
+        "reaching",
+        "grasping",
+        "grasping",
+        "placing",
+        "ended: failed at place",
+        "ended: failed at place",
+    ]
     assert side.describe(10) == "reaching, plan 1 of 2" and side.describe(80) == "placing, plan 2 of 2"
     assert side.describe(99) == "ended at step 99: ✘ failed at place"
     assert side.describe(120) == "ended at step 99: ✘ failed at place (holding its last frame)"
