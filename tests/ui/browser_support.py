@@ -84,6 +84,32 @@ def shot(page, path: Path, scroll_to: str | None = None) -> None:
                 warnings.warn(f"no screenshot {path.name}: the page did not render in time", stacklevel=2)
 
 
+def drawn(page, frames: int = 2) -> None:
+    """Wait until the page has drawn ``frames`` animation frames: what was sent to it is on the screen."""
+    page.evaluate(
+        """(n) => new Promise((done) => {
+             const step = (k) => (k <= 0 ? done() : requestAnimationFrame(() => step(k - 1)));
+             step(n);
+           })""",
+        frames,
+    )
+
+
+def sim_ticks(client, ticks: int, timeout: float = 30) -> None:
+    """Wait until the teleop session's simulation has advanced ``ticks`` control ticks (its pose stream)."""
+    start = client.latest_pose().step
+    if client.poses.wait_until(lambda f: f.step >= start + ticks, timeout) is None:
+        raise AssertionError(f"the simulation did not advance {ticks} ticks in {timeout} s")
+
+
+def next_pose(client, version: int, timeout: float = 10) -> int:
+    """Wait for the session's next pose frame after ``version``; returns the new version."""
+    _, newer = client.poses.wait_newer(version, timeout)
+    if newer <= version:
+        raise AssertionError(f"no pose frame from the simulation in {timeout} s")
+    return newer
+
+
 def click(locator) -> None:
     """Click without Playwright's stability wait: that waits on animation frames, which software WebGL on a
     loaded machine delivers slowly; the elements clicked here are plain buttons and tabs."""

@@ -197,17 +197,20 @@ def test_teleop_records_and_saves_an_episode(studio, page, shots):
     tab = ui.tab(studio)
     tp = tab.teleop
     assert tp.info.scene == "pick_place" and tp.info.robot == "sawyer"
-    # A real mouse drag on the gizmo's x arrow moves the target along x.
-    time.sleep(1.0)
+    # A real mouse drag on the gizmo's x arrow moves the target along x (once the page has drawn the gizmo).
+    ui.drawn(page, 3)
     center = np.asarray(tp.gizmo.position)
     grab = ui.screen_point(page, tab.client, center + np.array([0.09, 0.0, 0.0]))
     ahead = ui.screen_point(page, tab.client, center + np.array([0.14, 0.0, 0.0]))
     drags_before = tp.drags
     ee_before = np.asarray(tp.client.latest_pose().ee_pos)
+    page.mouse.move(grab[0] - 3, grab[1])
     page.mouse.move(*grab)
+    ui.drawn(page)  # hovered: the arrow under the pointer is picked
     page.mouse.down()
     for k in range(1, 11):
         page.mouse.move(grab[0] + (ahead[0] - grab[0]) * k / 10, grab[1] + (ahead[1] - grab[1]) * k / 10)
+        ui.drawn(page, 1)
     page.mouse.up()
     ui.wait(lambda: tp.drags > drags_before, 20, "the browser's drag to reach the server")
     assert np.asarray(tp.gizmo.position)[0] > center[0] + 0.01, (
@@ -221,9 +224,10 @@ def test_teleop_records_and_saves_an_episode(studio, page, shots):
     start = np.asarray(ui.wait(tp.client.latest_pose, 5, "a pose").ee_pos)
     # The gizmo's drag callback, as the browser reaches it: targets along a path, latest wins.
     goal = start + np.array([0.06, 0.04, -0.08])
-    for i in range(1, 61):
+    version = tp.client.poses.get()[1]
+    for i in range(1, 61):  # one target per pose frame of the simulation, as a hand's drag at its frame rate
         tp.move_to(start + (goal - start) * i / 60)
-        time.sleep(1 / 60)
+        version = ui.next_pose(tp.client, version)
     ui.wait(
         lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.01,
         15,
@@ -298,7 +302,9 @@ def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
     ui.click(page.get_by_role("button", name="Start training"))
     page.get_by_text("step 4/4").first.wait_for(timeout=240_000)
     page.get_by_text("ended: finished").first.wait_for(timeout=60_000)
-    time.sleep(3.5)  # the runs table refreshes every few seconds
+    short = train.job_id.removeprefix("train-")
+    ui.wait(lambda: f"`{short}`" in train.runs_table.content, 30, "the run's row in the runs table")
+    ui.drawn(page)
     ui.shot(page, shots / "train.png")
     ui.shot(page, shots / "train-curves.png", scroll_to="Learning rate")
     job = train.job_id
@@ -565,7 +571,7 @@ def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert job.result["latent_images"] == 5  # r_2 … r_6 of the shipped policy, decoded
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
-    time.sleep(1.0)  # let the browser draw the new images before the screenshot
+    ui.drawn(page)
     ui.shot(page, shots / "imitate-plan-shipped.png", scroll_to="Predicted latent trajectory")
     im.speed.value = "as fast as possible"
     ui.click(page.get_by_role("button", name="Execute", exact=True))
@@ -662,7 +668,7 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert job.result["latent_images"] > 0 and im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     assert im.plan_wps[2, 1] - im.plan_wps[1, 1] < -0.1, f"a backward push: {im.plan_wps}"
-    time.sleep(1.0)  # let the browser draw the plan before the screenshot
+    ui.drawn(page)
     ui.shot(page, shots / "imitate-push-plan.png", scroll_to="Policy for")
     ui.shot(page, shots / "imitate-push-latents.png", scroll_to="Predicted latent trajectory")
     im.speed.value = "as fast as possible"
@@ -670,7 +676,7 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
     page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
     result = ui.wait(lambda: im.rollout.result, 30, "the rollout's result")
     assert im.rollout.spec["checkpoint"] == push.path and im.rollout.spec["checkpoint_id"] == push.id
-    time.sleep(1.0)
+    ui.drawn(page)
     ui.shot(page, shots / "imitate-push-outcome.png", scroll_to="Policy for")
     assert result["success"] is True, result  # seeded: this scene and demonstration succeed
     assert "✔ Success" in im.outcome.content
@@ -732,7 +738,7 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     ui.wait(lambda: upload.pending is not None, 90, "the upload to be decoded", lambda: upload.status.content)
     page.get_by_text("Check the task above").first.wait_for(timeout=60_000)
     assert "hand-push.mp4" in upload.status.content and upload.strip.visible
-    time.sleep(1.0)  # let the browser draw the filmstrip
+    ui.drawn(page)
     ui.shot(page, shots / "upload-hand-filmstrip.png", scroll_to="The 10 frames the model will see")
     ui.click(page.get_by_role("button", name="Save as expert demonstration"))
     page.get_by_text("as an expert demonstration of").first.wait_for(timeout=60_000)
@@ -774,7 +780,7 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     ui.wait(lambda: plan.terminal and plan.result is not None, 120, "the plan", lambda: im.status.content)
     page.get_by_text("Planned in").first.wait_for(timeout=60_000)
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
-    time.sleep(1.0)  # let the browser draw the plan and the expert frames
+    ui.drawn(page)
     ui.shot(page, shots / "imitate-upload-plan.png", scroll_to="Policy for")
     ui.shot(page, shots / "imitate-upload-expert-frames.png", scroll_to="Expert frames the model sees")
     im.speed.value = "as fast as possible"
@@ -787,7 +793,7 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     assert rollout.spec["checkpoint_id"] == push.id
     page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
     result = ui.wait(lambda: rollout.result, 30, "the rollout's result")
-    time.sleep(1.0)
+    ui.drawn(page)
     ui.shot(page, shots / "imitate-upload-outcome.png", scroll_to="re-plan(s); rollout")
     outcome = "success" if result["success"] else f"failed at {result['failure_stage']}"
     print(f"\nthe Panda imitating the uploaded hand video of {PUSH_HELD_OUT}: {outcome}")
@@ -827,7 +833,7 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
         "the Meta-World camera preview",
         lambda: f"preview mean {float(np.asarray(tp.preview.image).mean()):.1f}",
     )
-    time.sleep(1.0)
+    ui.drawn(page, 3)
     ui.shot(page, shots / "teleop-metaworld.png")
     assert ui.colours(shots / "teleop-metaworld.png") > 300, "the Meta-World scene looks blank"
     before = {m.id for m in studio.store.episodes()}
@@ -835,9 +841,10 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     ui.wait(lambda: tp._recording and "REC" in tp.rec_status.content, 60, "recording to start")
     start = np.asarray(ui.wait(tp.client.latest_pose, 5, "a pose").ee_pos)
     goal = start + np.array([0.05, 0.05, -0.05])
-    for i in range(1, 61):  # the gizmo's drag callback, as the browser reaches it
+    version = tp.client.poses.get()[1]
+    for i in range(1, 61):  # the gizmo's drag callback, as the browser reaches it: one target per pose frame
         tp.move_to(start + (goal - start) * i / 60)
-        time.sleep(1 / 60)
+        version = ui.next_pose(tp.client, version)
     ui.wait(
         lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.02,
         20,
@@ -958,11 +965,12 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
         """The gizmo dragged to ``goal``: it moves, and its callback sends each position (latest wins)."""
         start = np.asarray(tp.client.latest_pose().ee_pos)
         n = int(seconds * 60)
-        for i in range(1, n + 1):
+        version = tp.client.poses.get()[1]
+        for i in range(1, n + 1):  # one target per pose frame of the simulation
             p = start + (np.asarray(goal) - start) * i / n
             tp.gizmo.position = p
             tp.move_to(p)
-            time.sleep(1 / 60)
+            version = ui.next_pose(tp.client, version)
         ui.wait(
             lambda: np.linalg.norm(np.asarray(tp.client.latest_pose().ee_pos) - goal) < 0.01,
             20,
@@ -974,7 +982,7 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     drag(grasp[:3], 1.0)
     ui.click(page.get_by_role("button", name="Close", exact=True))
     ui.wait(lambda: tp.client.latest_pose().gripper == 1.0, 10, "the gripper to close")
-    time.sleep(0.8)
+    ui.sim_ticks(tp.client, 40)  # the fingers close on the bar
     drag(lift[:3])
     # The recording gains a tick with every control tick: its length is the pose's step plus a fixed offset (read
     # from one state message, which carries both, as the states are re-published only twice a second).
@@ -1013,7 +1021,8 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     drag(carry[:3], 2.0)
     drag(place[:3], 1.0)
     ui.click(page.get_by_role("button", name="Open", exact=True).last)
-    time.sleep(1.0)
+    ui.wait(lambda: tp.client.latest_pose().gripper == 0.0, 10, "the gripper to open")
+    ui.sim_ticks(tp.client, 50)  # the fingers let the bar go
     drag(place[:3] + np.array([0.0, 0.0, 0.08]))
     ui.wait(
         lambda: tp.success.value, 10, "the task's check to see the bar placed", lambda: ui.teleop_state(tab)

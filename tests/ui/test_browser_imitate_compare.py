@@ -11,7 +11,6 @@ the end).
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -282,7 +281,7 @@ def test_imitate_policy_line_is_short_and_images_enlarge(studio, page, shots):
     assert policy.summary[:40] not in line.inner_text()
     assert not page.get_by_text(policy.summary[:40]).first.is_visible()
     ui.click_until(page, page.get_by_text("About this policy"), policy.summary[:40])
-    time.sleep(1.0)  # the fold opens with an animation: let the browser finish drawing it
+    ui.drawn(page, 3)
     ui.shot(page, shots / "enlarge-1-policy-fold.png", scroll_to="About this policy")
 
     plan(page, im)
@@ -296,7 +295,7 @@ def test_imitate_policy_line_is_short_and_images_enlarge(studio, page, shots):
     widths = [images.nth(i).bounding_box()["width"] for i in range(3)]
     panel = expert_image(page).bounding_box()["width"]
     assert min(widths[0], widths[2]) > 2 * panel, (widths, panel)
-    time.sleep(1.0)  # let the browser draw the images
+    ui.drawn(page, 3)
     ui.shot(page, shots / "enlarge-2-imitate-modal.png")
     ui.click(modal.get_by_role("button", name="Close"))
     page.locator(".mantine-Modal-content").first.wait_for(state="detached", timeout=30_000)
@@ -358,6 +357,6 @@ def test_compare_starts_from_two_policies_of_the_scene_and_makes_missing_demonst
         30,
         "the enlarged views to follow the timeline",
     )
-    time.sleep(1.0)
+    ui.drawn(page, 3)
     ui.shot(page, shots / "compare-3-enlarged.png")
     ui.click(modal.get_by_role("button", name="Close"))

@@ -354,15 +354,20 @@ def test_a_fork_mid_carry_keeps_the_object_in_the_gripper(studio, browser, rollo
         return "/gizmo" in nodes and np.linalg.norm(np.asarray(nodes["/gizmo"]["position"]) - ee) < 0.02
 
     ui.wait(gizmo_at_gripper, 30, "the gizmo drawn at the gripper")
-    page.evaluate("() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r)))")
+    ui.drawn(page)
 
     def drag_up() -> None:
+        """Hover on the arrow until the page has drawn a frame (the arrow under the pointer is picked on hover),
+        press, and move up one drawn frame at a time."""
         x, y = ui.screen_point(page, tab.client, ee + np.array([0.0, 0.0, 0.05]))
+        page.mouse.move(x - 3, y)
         page.mouse.move(x, y)
+        ui.drawn(page)
         page.mouse.down()
+        ui.drawn(page, 1)
         for i in range(1, 21):
             page.mouse.move(x, y - 4 * i)
-            page.wait_for_timeout(50)
+            ui.drawn(page, 1)
         page.mouse.up()
 
     ui.click_until_done(
