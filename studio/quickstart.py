@@ -42,9 +42,13 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from studio.data.paths import add_data_dir_argument, resolve_data_dir
 from studio.model.recipes import RECIPES
+
+if TYPE_CHECKING:
+    from studio.eval.evaluation import EvaluationReport
 
 # The models: the full OSVI-WM, or the paper's no-world-model ablation (one latent action straight into the
 # waypoint head), each trained by its pick-and-place recipe (``studio.model.recipes``: the stages' settings over
@@ -227,13 +231,13 @@ def run(args: argparse.Namespace) -> int:
                 ]
             ),
         )
-    report: dict = {}
+    reports: list[EvaluationReport] = []
 
     def evaluate() -> int:
         from studio.data.splits import resolve_tasks
         from studio.eval.evaluation import evaluate as run_eval
 
-        report.update(
+        reports.append(
             run_eval(
                 str(checkpoint),
                 resolve_tasks("pick_place", "held-out"),
@@ -247,17 +251,18 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     _stage("eval", times, evaluate)
+    (report,) = reports
     total = time.perf_counter() - started
     summary = {
         "stage_wall_s": {k: round(v, 1) for k, v in times.items()},
         "total_wall_s": round(total, 1),
-        "held_out_success": report["success"],
-        "tasks": {t: r["success"] for t, r in report["tasks"].items()},
-        "rollouts": report["rollouts"],
+        "held_out_success": report.success,
+        "tasks": {t: r.success for t, r in report.tasks.items()},
+        "rollouts": report.rollouts,
         "replan": args.replan,
         "variant": args.variant,
         "checkpoint": str(checkpoint),
-        "eval_id": report["eval_id"],
+        "eval_id": report.eval_id,
         "args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
         "cpu_count": os.cpu_count(),
     }
@@ -267,7 +272,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{k:10s} {v / 60:8.1f}")
     print(f"{'total':10s} {total / 60:8.1f}")
     print(
-        f"held-out success {report['success']:.1%} over {report['rollouts']} rollouts "
+        f"held-out success {report.success:.1%} over {report.rollouts} rollouts "
         f"({', '.join(f'{t} {s:.0%}' for t, s in summary['tasks'].items())}); checkpoint {checkpoint}"
     )
     return 0

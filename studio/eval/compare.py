@@ -32,7 +32,7 @@ import sys
 import time
 import uuid
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from studio.data.catalog import RolloutRecord
@@ -50,7 +50,7 @@ class CompareInputError(ValueError):
     trained on, no demonstrations): found before any rollout runs."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class Outcome:
     """How one side's rollout of an episode ended."""
 
@@ -63,7 +63,7 @@ class Outcome:
         return "✔" if self.success else f"✘ {self.failure_stage or 'failed'}"
 
 
-@dataclass
+@dataclass(frozen=True)
 class CompareRow:
     """One episode — (task, scene seed, demonstration) — rolled out by A and by B."""
 
@@ -107,32 +107,52 @@ def order_rows(rows: Iterable[CompareRow]) -> list[CompareRow]:
     )
 
 
-def totals(rows: Sequence[CompareRow]) -> dict:
+@dataclass(frozen=True)
+class ComparisonTotals:
+    """A comparison's episodes summed up: A's and B's successes and how many episodes fall in each difference."""
+
+    episodes: int
+    a_successes: int
+    b_successes: int
+    a_success: float  # a fraction of the episodes (0 when there are none)
+    b_success: float
+    a_only: int
+    b_only: int
+    both: int
+    neither: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def totals(rows: Sequence[CompareRow]) -> ComparisonTotals:
     """Success rates of A and B over the rows, and how many episodes fall in each difference."""
     n = len(rows)
     counts = {d: sum(1 for r in rows if r.difference == d) for d in DIFFERENCES}
-    return {
-        "episodes": n,
-        "a_successes": sum(r.a.success for r in rows),
-        "b_successes": sum(r.b.success for r in rows),
-        "a_success": sum(r.a.success for r in rows) / n if n else 0.0,
-        "b_success": sum(r.b.success for r in rows) / n if n else 0.0,
-        "a_only": counts["A only"],
-        "b_only": counts["B only"],
-        "both": counts["both"],
-        "neither": counts["neither"],
-    }
+    a_successes = sum(1 for r in rows if r.a.success)
+    b_successes = sum(1 for r in rows if r.b.success)
+    return ComparisonTotals(
+        episodes=n,
+        a_successes=a_successes,
+        b_successes=b_successes,
+        a_success=a_successes / n if n else 0.0,
+        b_success=b_successes / n if n else 0.0,
+        a_only=counts["A only"],
+        b_only=counts["B only"],
+        both=counts["both"],
+        neither=counts["neither"],
+    )
 
 
 def _cell(text: str) -> str:
     return str(text).replace("|", "\\|")
 
 
-def totals_line(t: dict, label_a: str = "A", label_b: str = "B") -> str:
+def totals_line(t: ComparisonTotals, label_a: str = "A", label_b: str = "B") -> str:
     return (
-        f"**A {t['a_success']:.1%}** ({t['a_successes']} / {t['episodes']}, {_cell(label_a)}) · "
-        f"**B {t['b_success']:.1%}** ({t['b_successes']} / {t['episodes']}, {_cell(label_b)}) · "
-        f"A only {t['a_only']} · B only {t['b_only']} · both {t['both']} · neither {t['neither']}"
+        f"**A {t.a_success:.1%}** ({t.a_successes} / {t.episodes}, {_cell(label_a)}) · "
+        f"**B {t.b_success:.1%}** ({t.b_successes} / {t.episodes}, {_cell(label_b)}) · "
+        f"A only {t.a_only} · B only {t.b_only} · both {t.both} · neither {t.neither}"
     )
 
 
@@ -314,9 +334,13 @@ def default_pair(candidates: Sequence[Candidate], active: str | None = None) -> 
 
 
 # ---------------------------------------------------------------------------------------------- running
-@dataclass
+@dataclass(frozen=True)
 class Comparison:
-    """A finished comparison: what ran and the rows, in table order."""
+    """What :func:`compare` returns: what ran and the rows, in table order.
+
+    :meth:`to_dict` is its JSON form (the ``compare`` job's result on the bus, ``studio compare --json`` and the
+    JSON beside ``--out``).
+    """
 
     compare_id: str
     checkpoint_a: str
@@ -325,19 +349,19 @@ class Comparison:
     label_b: str
     scene: str
     robot: str
-    tasks: list[str]
+    tasks: tuple[str, ...]
     episodes: int
     seed: int
     replan: int
     workers: int
     wall_s: float
-    rows: list[CompareRow] = field(default_factory=list)
+    rows: tuple[CompareRow, ...] = ()
 
     @property
     def eval_ids(self) -> tuple[str, str]:
         return f"{self.compare_id}-a", f"{self.compare_id}-b"
 
-    def totals(self) -> dict:
+    def totals(self) -> ComparisonTotals:
         return totals(self.rows)
 
     def markdown(self) -> str:
@@ -350,11 +374,22 @@ class Comparison:
         return head + render_markdown(self.rows, self.label_a, self.label_b)
 
     def to_dict(self) -> dict:
-        d = {k: v for k, v in asdict(self).items() if k != "rows"}
         return {
-            **d,
+            "compare_id": self.compare_id,
+            "checkpoint_a": self.checkpoint_a,
+            "checkpoint_b": self.checkpoint_b,
+            "label_a": self.label_a,
+            "label_b": self.label_b,
+            "scene": self.scene,
+            "robot": self.robot,
+            "tasks": list(self.tasks),
+            "episodes": self.episodes,
+            "seed": self.seed,
+            "replan": self.replan,
+            "workers": self.workers,
+            "wall_s": self.wall_s,
             "eval_ids": list(self.eval_ids),
-            "totals": self.totals(),
+            "totals": self.totals().to_dict(),
             "rows": [r.to_dict() for r in self.rows],
         }
 
@@ -507,13 +542,13 @@ def compare(
         labels[1],
         scene,
         robot,
-        list(tasks),
+        tuple(tasks),
         episodes,
         seed,
         replan,
         max(1, min(workers, len(work))),
         time.perf_counter() - started,
-        order_rows(rows),
+        tuple(order_rows(rows)),
     )
 
 

@@ -55,8 +55,10 @@ class PolicyRun:
     grasp: str = "auto"  # grasp correction (studio.eval.rollout.GRASP_MODES)
 
 
-@dataclass
+@dataclass(frozen=True)
 class RolloutSummary:
+    """One stored rollout's outcome: the episode it ran, how far it got, its re-plans and timings."""
+
     rollout_id: str
     task: str
     index: int
@@ -298,32 +300,116 @@ def run_rollouts(
 
 
 # ---------------------------------------------------------------------------------------------- driver side
-def summarise(rows: list[RolloutSummary]) -> dict:
-    by_task: dict[str, dict] = {}
+@dataclass(frozen=True)
+class TaskBreakdown:
+    """One task's rollouts summed up: success, the share that reached each stage, re-plans, planning time."""
+
+    rollouts: int
+    success: float
+    reached: float
+    grasped: float
+    placed: float
+    mean_replans: float
+    mean_planning_ms: float
+    #: How many rollouts failed at each stage (only the stages some rollout failed at).
+    failure_stages: dict[str, int]
+
+
+@dataclass(frozen=True)
+class RolloutTotals:
+    """Rollouts summed up per task (sorted by name) and over all of them."""
+
+    tasks: dict[str, TaskBreakdown]
+    success: float
+    rollouts: int
+    mean_planning_ms: float
+
+
+@dataclass(frozen=True)
+class EvaluationReport:
+    """What :func:`evaluate` returns: the totals, what was evaluated and how, and every rollout by (task, index).
+
+    :meth:`to_dict` is its JSON form (``studio eval --json``, the reports beside ``studio results``' table).
+    """
+
+    tasks: dict[str, TaskBreakdown]
+    success: float
+    rollouts: int
+    mean_planning_ms: float
+    eval_id: str
+    checkpoint: str  # the checkpoint file, or "oracle"
+    robot: str
+    scene: str
+    seed: int
+    replan: int
+    grasp_correction: str
+    expert_embodiments: tuple[str, ...]
+    episodes_per_task: int
+    wall_s: float
+    workers: int
+    rows: tuple[RolloutSummary, ...]
+    #: Set by :func:`with_budget`: the budget of the evaluation these rows were cut from.
+    derived_from_replan: int | None = None
+    #: Set by :func:`with_budget` when it cut some tasks only: those tasks.
+    replan_cut_tasks: tuple[str, ...] | None = None
+
+    def to_dict(self) -> dict:
+        """The report as JSON-ready built-ins; the keys ``derived_from_replan`` and ``replan_cut_tasks`` only
+        when set."""
+        out: dict = {
+            "tasks": {task: asdict(breakdown) for task, breakdown in self.tasks.items()},
+            "success": self.success,
+            "rollouts": self.rollouts,
+            "mean_planning_ms": self.mean_planning_ms,
+            "eval_id": self.eval_id,
+            "checkpoint": self.checkpoint,
+            "robot": self.robot,
+            "scene": self.scene,
+            "seed": self.seed,
+            "replan": self.replan,
+            "grasp_correction": self.grasp_correction,
+            "expert_embodiments": list(self.expert_embodiments),
+            "episodes_per_task": self.episodes_per_task,
+            "wall_s": self.wall_s,
+            "workers": self.workers,
+        }
+        if self.derived_from_replan is not None:
+            out["derived_from_replan"] = self.derived_from_replan
+        if self.replan_cut_tasks is not None:
+            out["replan_cut_tasks"] = list(self.replan_cut_tasks)
+        out["rows"] = [asdict(r) for r in self.rows]
+        return out
+
+
+def summarise(rows: Sequence[RolloutSummary]) -> RolloutTotals:
+    """Per-task breakdowns and overall success and planning time of ``rows`` (zeros when there are none)."""
+    by_task: dict[str, TaskBreakdown] = {}
     for task in sorted({r.task for r in rows}):
         rs = [r for r in rows if r.task == task]
-        by_task[task] = {
-            "rollouts": len(rs),
-            "success": float(np.mean([r.success for r in rs])),
-            "reached": float(np.mean([r.reached for r in rs])),
-            "grasped": float(np.mean([r.grasped for r in rs])),
-            "placed": float(np.mean([r.placed for r in rs])),
-            "mean_replans": float(np.mean([r.replans for r in rs])),
-            "mean_planning_ms": 1000 * float(np.mean([r.planning_time_s for r in rs])),
-            "failure_stages": {
+        by_task[task] = TaskBreakdown(
+            rollouts=len(rs),
+            success=float(np.mean([r.success for r in rs])),
+            reached=float(np.mean([r.reached for r in rs])),
+            grasped=float(np.mean([r.grasped for r in rs])),
+            placed=float(np.mean([r.placed for r in rs])),
+            mean_replans=float(np.mean([r.replans for r in rs])),
+            mean_planning_ms=1000 * float(np.mean([r.planning_time_s for r in rs])),
+            failure_stages={
                 s: sum(1 for r in rs if r.failure_stage == s)
                 for s in sorted({r.failure_stage for r in rs if r.failure_stage})
             },
-        }
-    return {
-        "tasks": by_task,
-        "success": float(np.mean([r.success for r in rows])) if rows else 0.0,
-        "rollouts": len(rows),
-        "mean_planning_ms": 1000 * float(np.mean([r.planning_time_s for r in rows])) if rows else 0.0,
-    }
+        )
+    return RolloutTotals(
+        tasks=by_task,
+        success=float(np.mean([r.success for r in rows])) if rows else 0.0,
+        rollouts=len(rows),
+        mean_planning_ms=1000 * float(np.mean([r.planning_time_s for r in rows])) if rows else 0.0,
+    )
 
 
-def with_budget(report: dict, replan: int, tasks: Collection[str] | None = None) -> dict:
+def with_budget(
+    report: EvaluationReport, replan: int, tasks: Collection[str] | None = None
+) -> EvaluationReport:
     """The report ``report`` (evaluated with a larger re-plan budget) would have been with ``replan`` re-plans.
 
     Exact, not an estimate: a rollout is deterministic for its seed, and a re-plan happens only after an attempt
@@ -334,10 +420,10 @@ def with_budget(report: dict, replan: int, tasks: Collection[str] | None = None)
     """
     from studio.eval.rollout import failure_stage  # the simulator: loaded only when a budget is derived
 
-    if replan > report["replan"]:
-        raise ValueError(f"cannot derive {replan} re-plans from an evaluation with {report['replan']}")
+    if replan > report.replan:
+        raise ValueError(f"cannot derive {replan} re-plans from an evaluation with {report.replan}")
     rows = []
-    for r in (RolloutSummary(**row) for row in report["rows"]):
+    for r in report.rows:
         cut = tasks is None or r.task in tasks
         if cut and len(r.attempt_stages) > replan + 1:  # it used more attempts than the smaller budget allows
             stages, times = r.attempt_stages[replan], r.attempt_planning_s[: replan + 1]
@@ -355,16 +441,17 @@ def with_budget(report: dict, replan: int, tasks: Collection[str] | None = None)
             )
         rows.append(r)
     derived = summarise(rows)
-    keep = {k: v for k, v in report.items() if k not in derived}
-    only = {} if tasks is None else {"replan_cut_tasks": sorted(tasks)}
-    return {
-        **keep,
-        **derived,
-        "replan": replan,
-        "derived_from_replan": report["replan"],
-        **only,
-        "rows": [asdict(r) for r in rows],
-    }
+    return replace(
+        report,
+        tasks=derived.tasks,
+        success=derived.success,
+        rollouts=derived.rollouts,
+        mean_planning_ms=derived.mean_planning_ms,
+        replan=replan,
+        derived_from_replan=report.replan,
+        replan_cut_tasks=report.replan_cut_tasks if tasks is None else tuple(sorted(tasks)),
+        rows=tuple(rows),
+    )
 
 
 def default_expert_embodiments(scene: str) -> tuple[str, ...]:
@@ -422,8 +509,8 @@ def evaluate(
     progress: bool = True,
     expert_embodiments: Sequence[str] | None = None,
     grasp: str = "auto",
-) -> dict:
-    """Run the evaluation and return the report (also written into the catalog as rollouts).
+) -> EvaluationReport:
+    """Run the evaluation and return its report (the rollouts are also written into the catalog).
 
     ``expert_embodiments`` picks whose demonstrations the rollouts imitate (None: Sawyer or human; Meta-World: the
     Sawyer, its only demonstrator). The demonstrations are drawn before the first rollout. ``grasp`` is the grasp
@@ -475,24 +562,25 @@ def evaluate(
             bar.close()
     workers = max(1, min(workers, len(jobs)))
     rows.sort(key=lambda r: (r.task, r.index))
-    report = summarise(rows)
-    report.update(
-        {
-            "eval_id": eval_id,
-            "checkpoint": checkpoint,
-            "robot": robot,
-            "scene": scene,
-            "seed": seed,
-            "replan": replan,
-            "grasp_correction": grasp,
-            "expert_embodiments": list(experts),
-            "episodes_per_task": episodes,
-            "wall_s": time.perf_counter() - started,
-            "workers": workers,
-            "rows": [asdict(r) for r in rows],
-        }
+    totals = summarise(rows)
+    return EvaluationReport(
+        tasks=totals.tasks,
+        success=totals.success,
+        rollouts=totals.rollouts,
+        mean_planning_ms=totals.mean_planning_ms,
+        eval_id=eval_id,
+        checkpoint=checkpoint,
+        robot=robot,
+        scene=scene,
+        seed=seed,
+        replan=replan,
+        grasp_correction=grasp,
+        expert_embodiments=experts,
+        episodes_per_task=episodes,
+        wall_s=time.perf_counter() - started,
+        workers=workers,
+        rows=tuple(rows),
     )
-    return report
 
 
 def add_expert_embodiment_argument(parser: argparse.ArgumentParser) -> None:
@@ -588,20 +676,20 @@ def run(args: argparse.Namespace) -> int:
         grasp=args.grasp_correction,
     )
     if args.json:
-        print(json.dumps(report, default=float))
+        print(json.dumps(report.to_dict(), default=float))
         return 0
     print(
-        f"eval {report['eval_id']}  checkpoint={args.checkpoint}  replan={args.replan}  "
-        f"experts={','.join(report['expert_embodiments'])}  "
-        f"{report['rollouts']} rollouts in {report['wall_s']:.0f} s"
+        f"eval {report.eval_id}  checkpoint={args.checkpoint}  replan={args.replan}  "
+        f"experts={','.join(report.expert_embodiments)}  "
+        f"{report.rollouts} rollouts in {report.wall_s:.0f} s"
     )
     print(
         f"{'task':32s} {'n':>4s} {'success':>8s} {'reached':>8s} {'grasped':>8s} {'placed':>8s} {'plan ms':>8s}"
     )
-    for task, t in report["tasks"].items():
+    for task, t in report.tasks.items():
         print(
-            f"{task:32s} {t['rollouts']:4d} {t['success']:8.1%} {t['reached']:8.1%} {t['grasped']:8.1%} "
-            f"{t['placed']:8.1%} {t['mean_planning_ms']:8.1f}"
+            f"{task:32s} {t.rollouts:4d} {t.success:8.1%} {t.reached:8.1%} {t.grasped:8.1%} "
+            f"{t.placed:8.1%} {t.mean_planning_ms:8.1f}"
         )
-    print(f"{'all':32s} {report['rollouts']:4d} {report['success']:8.1%}")
+    print(f"{'all':32s} {report.rollouts:4d} {report.success:8.1%}")
     return 0

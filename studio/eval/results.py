@@ -27,6 +27,7 @@ from pathlib import Path
 from studio.data.paths import add_data_dir_argument
 from studio.data.splits import SplitSpec, load_split, resolve_tasks
 from studio.eval.evaluation import (
+    EvaluationReport,
     add_expert_embodiment_argument,
     add_grasp_correction_argument,
     evaluate,
@@ -42,27 +43,27 @@ def parse_policy(spec: str) -> tuple[str, str]:
     return name, path
 
 
-def _mean(report: dict, key: str) -> str:
-    """A breakdown rate over all of a report's rollouts (tasks weighted by their rollout counts)."""
-    n = max(report["rollouts"], 1)
-    return f"{sum(v[key] * v['rollouts'] for v in report['tasks'].values()) / n:.1%}"
+def _mean(report: EvaluationReport, stage: str) -> str:
+    """The share of all of a report's rollouts that reached ``stage`` (tasks weighted by their rollout counts)."""
+    n = max(report.rollouts, 1)
+    return f"{sum(getattr(v, stage) * v.rollouts for v in report.tasks.values()) / n:.1%}"
 
 
-def _group_mean(report: dict, tasks) -> str:
+def _group_mean(report: EvaluationReport, tasks) -> str:
     """Mean success over a group's tasks (the paper's Table 1 averages tasks), or – if none was evaluated."""
-    rates = [report["tasks"][t]["success"] for t in tasks if t in report["tasks"]]
+    rates = [report.tasks[t].success for t in tasks if t in report.tasks]
     return f"{sum(rates) / len(rates):.1%}" if rates else "–"
 
 
 def render_markdown(
-    reports: list[tuple[str, int | str, dict]], groups: dict[str, tuple[str, ...]] | None = None
+    reports: list[tuple[str, int | str, EvaluationReport]], groups: dict[str, tuple[str, ...]] | None = None
 ) -> str:
     """Rows of (policy name, replans, evaluation report) → a Markdown table (one row per policy × replans).
 
     ``groups`` (a split's ``test_groups``, e.g. Meta-World's easy/hard) adds a column per group after the tasks.
     """
     groups = groups or {}
-    tasks = sorted({t for _, _, r in reports for t in r["tasks"]})
+    tasks = sorted({t for _, _, r in reports for t in r.tasks})
     head = [
         "policy",
         "re-plans",
@@ -78,47 +79,48 @@ def render_markdown(
     ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, replan, r in reports:
-        per_task = [f"{r['tasks'][t]['success']:.1%}" if t in r["tasks"] else "–" for t in tasks]
+        per_task = [f"{r.tasks[t].success:.1%}" if t in r.tasks else "–" for t in tasks]
         per_group = [_group_mean(r, g) for g in groups.values()]
         row = [
             name,
             str(replan),
             *per_task,
             *per_group,
-            f"**{r['success']:.1%}**",
+            f"**{r.success:.1%}**",
             _mean(r, "reached"),
             _mean(r, "grasped"),
             _mean(r, "placed"),
-            f"{r['mean_planning_ms']:.0f}",
-            str(r["rollouts"]),
-            f"{r['wall_s'] / 60:.1f}",
+            f"{r.mean_planning_ms:.0f}",
+            str(r.rollouts),
+            f"{r.wall_s / 60:.1f}",
         ]
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 
 def budget_rows(
-    name: str, report: dict, replans: list[int], split: SplitSpec
-) -> list[tuple[str, int | str, dict]]:
+    name: str, report: EvaluationReport, replans: list[int], split: SplitSpec
+) -> list[tuple[str, int | str, EvaluationReport]]:
     """A policy's table rows from its one evaluation at the largest budget: one per budget in ``replans``, then,
     if the split names ``replan_groups``, the paper's protocol — the largest budget on those groups' tasks, one
     attempt on the other test tasks (Meta-World: re-plans on the hard tasks only)."""
     most = max(replans)
-    rows: list[tuple[str, int | str, dict]] = [
+    rows: list[tuple[str, int | str, EvaluationReport]] = [
         (name, k, report if k == most else with_budget(report, k)) for k in replans
     ]
     replanned = split.replanned_tasks()
     if replanned and most > 0:
-        once = [t for t in report["tasks"] if t not in replanned]
+        once = [t for t in report.tasks if t not in replanned]
         rows.append((name, f"{most}, {'/'.join(split.replan_groups)} only", with_budget(report, 0, once)))
     return rows
 
 
-def json_rows(reports: list[tuple[str, int | str, dict]]) -> list[dict]:
+def json_rows(reports: list[tuple[str, int | str, EvaluationReport]]) -> list[dict]:
     """The table's rows as the JSON beside it: each report without its per-rollout rows, named by policy and by
     the row's re-plan label (the paper-protocol row's report says 0 re-plans for its cut tasks; the label wins)."""
     return [
-        {"policy": n, **{key: v for key, v in r.items() if key != "rows"}, "replan": k} for n, k, r in reports
+        {"policy": n, **{key: v for key, v in r.to_dict().items() if key != "rows"}, "replan": k}
+        for n, k, r in reports
     ]
 
 
@@ -157,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     tasks = resolve_tasks(args.scene, "held-out")
     split = load_split(args.scene)
-    reports: list[tuple[str, int | str, dict]] = []
+    reports: list[tuple[str, int | str, EvaluationReport]] = []
     # One evaluation per policy at the largest budget; the smaller budgets are its rollouts cut after fewer attempts.
     most = max(args.replan)
     for name, checkpoint in args.policy:

@@ -77,7 +77,8 @@ def test_differing_rows_come_first_then_by_task_and_index():
 def test_totals_and_markdown():
     rows = order_rows([_row(0, True, True), _row(1, False, True), _row(2, True, False), _row(3, True, False)])
     t = totals(rows)
-    assert t == {
+    assert (t.a_success, t.b_only) == (0.75, 1)
+    assert json.loads(json.dumps(t.to_dict())) == {
         "episodes": 4,
         "a_successes": 3,
         "b_successes": 2,
@@ -180,7 +181,7 @@ def test_a_and_b_roll_out_the_same_episodes_and_every_rollout_is_stored(store_ro
     ]
     assert (result.label_a, result.label_b) == ("oracle", "tiny/best")
     t = result.totals()
-    assert (t["a_success"], t["b_success"], t["a_only"], t["b_only"]) == (1.0, 0.0, 3, 0)
+    assert (t.a_success, t.b_success, t.a_only, t.b_only) == (1.0, 0.0, 3, 0)
     with EpisodeStore(store_root) as store:
         side_a = store.catalog.rollouts(eval_id=result.eval_ids[0])
         side_b = store.catalog.rollouts(eval_id=result.eval_ids[1])
@@ -201,6 +202,25 @@ def test_a_and_b_roll_out_the_same_episodes_and_every_rollout_is_stored(store_ro
         assert evals[result.eval_ids[1]].complete and evals[result.eval_ids[1]].label == "tiny/best"
     as_json = json.loads(json.dumps(result.to_dict()))
     assert as_json["rows"][0]["difference"] == "A only" and as_json["totals"]["a_only"] == 3
+    assert list(as_json) == [  # the compare job's result on the bus and the JSON beside --out: this shape
+        "compare_id",
+        "checkpoint_a",
+        "checkpoint_b",
+        "label_a",
+        "label_b",
+        "scene",
+        "robot",
+        "tasks",
+        "episodes",
+        "seed",
+        "replan",
+        "workers",
+        "wall_s",
+        "eval_ids",
+        "totals",
+        "rows",
+    ]
+    assert as_json["tasks"] == [TASK] and as_json["eval_ids"] == list(result.eval_ids)
 
 
 def test_a_stopped_comparison_says_so_and_its_rollouts_are_marked_incomplete(store_root):

@@ -80,7 +80,99 @@ def test_the_panda_imitates_hand_demonstrations(tmp_path):
     report = evaluate(
         "oracle", [task], 2, seed=0, data_dir=tmp_path, progress=False, expert_embodiments=["human"]
     )
-    assert report["expert_embodiments"] == ["human"] and report["success"] == 1.0
+    assert report.expert_embodiments == ("human",) and report.success == 1.0
     with EpisodeStore(tmp_path) as store:
         (hand_demo,) = store.episodes(embodiment="human")
-        assert {r["expert_episode_id"] for r in report["rows"]} == {hand_demo.id}
+        assert {r.expert_episode_id for r in report.rows} == {hand_demo.id}
+
+
+#: The report's JSON form as ``evaluate`` wrote it when it returned a dict: each key (in order) and its type.
+REPORT_JSON_FIELDS = {
+    "tasks": dict,
+    "success": float,
+    "rollouts": int,
+    "mean_planning_ms": float,
+    "eval_id": str,
+    "checkpoint": str,
+    "robot": str,
+    "scene": str,
+    "seed": int,
+    "replan": int,
+    "grasp_correction": str,
+    "expert_embodiments": list,
+    "episodes_per_task": int,
+    "wall_s": float,
+    "workers": int,
+    "rows": list,
+}
+TASK_JSON_FIELDS = {
+    "rollouts": int,
+    "success": float,
+    "reached": float,
+    "grasped": float,
+    "placed": float,
+    "mean_replans": float,
+    "mean_planning_ms": float,
+    "failure_stages": dict,
+}
+ROW_JSON_FIELDS = {
+    "rollout_id": str,
+    "task": str,
+    "index": int,
+    "seed": int,
+    "expert_episode_id": str,
+    "success": bool,
+    "reached": bool,
+    "grasped": bool,
+    "placed": bool,
+    "failure_stage": type(None),  # the oracle succeeds
+    "replans": int,
+    "planning_time_s": float,
+    "duration_s": float,
+    "attempt_stages": list,
+    "attempt_planning_s": list,
+}
+
+
+def _shape(d: dict) -> list[tuple[str, type]]:
+    return [(key, type(value)) for key, value in d.items()]
+
+
+def test_the_report_reads_by_attribute_and_its_json_form_keeps_the_dict_shape(tmp_path, capsys):
+    """``evaluate`` returns an :class:`EvaluationReport`; its ``to_dict`` (``studio eval --json``, the results
+    files) has the keys, order and types of the dict it returned before, and holds the attributes' values."""
+    import json
+
+    from studio.data.collect import CollectConfig, collect
+    from studio.eval.evaluation import EvaluationReport, TaskBreakdown, evaluate, with_budget
+
+    task = "pick_place/bar->blue"
+    cfg = CollectConfig(
+        robot="sawyer", tasks=[task], episodes=1, image_size=(60, 80), data_dir=str(tmp_path), progress=False
+    )
+    assert collect(cfg).made == 1
+    report = evaluate("oracle", [task], 1, seed=2, data_dir=tmp_path, progress=False)
+    assert isinstance(report, EvaluationReport) and isinstance(report.tasks[task], TaskBreakdown)
+    assert (report.success, report.rollouts, report.tasks[task].placed) == (1.0, 1, 1.0)
+    assert (report.scene, report.robot, report.seed, report.expert_embodiments) == (
+        "pick_place",
+        "panda",
+        2,
+        ("sawyer", "human"),
+    )
+    (row,) = report.rows
+    assert row.task == task and row.success and row.replans == 0
+
+    as_dict = report.to_dict()
+    assert _shape(as_dict) == list(REPORT_JSON_FIELDS.items())
+    assert _shape(as_dict["tasks"][task]) == list(TASK_JSON_FIELDS.items())
+    assert _shape(as_dict["rows"][0]) == list(ROW_JSON_FIELDS.items())
+    assert json.loads(json.dumps(as_dict)) == as_dict, "built-ins only: no default= needed to write it"
+    assert as_dict["tasks"][task]["success"] == report.tasks[task].success
+    assert as_dict["rows"][0]["rollout_id"] == row.rollout_id and as_dict["eval_id"] == report.eval_id
+    assert as_dict["expert_embodiments"] == ["sawyer", "human"]
+    # A derived budget adds the key saying what it was cut from, nothing else.
+    derived = with_budget(report, 0).to_dict()
+    assert [k for k in derived if k not in as_dict] == ["derived_from_replan"] and derived[
+        "derived_from_replan"
+    ] == 0

@@ -7,7 +7,7 @@ import argparse
 import pytest
 
 from studio.data.splits import load_split
-from studio.eval.evaluation import RolloutSummary, summarise
+from studio.eval.evaluation import EvaluationReport, RolloutSummary, RolloutTotals, TaskBreakdown, summarise
 from studio.eval.results import budget_rows, json_rows, parse_policy, render_markdown
 
 MW_TASKS = (
@@ -18,17 +18,34 @@ MW_TASKS = (
 )
 
 
-def _report(rates: dict[str, float], n: int = 10) -> dict:
-    tasks = {
-        t: {"success": r, "reached": r, "grasped": r, "placed": r, "rollouts": n} for t, r in rates.items()
-    }
-    return {
-        "tasks": tasks,
-        "success": sum(rates.values()) / len(rates),
-        "rollouts": n * len(rates),
-        "mean_planning_ms": 80.0,
-        "wall_s": 120.0,
-    }
+def _as_report(
+    totals: RolloutTotals, replan: int, wall_s: float, rows: tuple[RolloutSummary, ...] = ()
+) -> EvaluationReport:
+    """An evaluation report with these totals and rows, run on nothing in particular."""
+    return EvaluationReport(
+        tasks=totals.tasks,
+        success=totals.success,
+        rollouts=totals.rollouts,
+        mean_planning_ms=totals.mean_planning_ms,
+        eval_id="eval-made-up",
+        checkpoint="oracle",
+        robot="sawyer",
+        scene="metaworld",
+        seed=0,
+        replan=replan,
+        grasp_correction="auto",
+        expert_embodiments=("sawyer",),
+        episodes_per_task=max((t.rollouts for t in totals.tasks.values()), default=0),
+        wall_s=wall_s,
+        workers=1,
+        rows=rows,
+    )
+
+
+def _report(rates: dict[str, float], n: int = 10) -> EvaluationReport:
+    tasks = {t: TaskBreakdown(n, r, r, r, r, 0.0, 80.0, {}) for t, r in rates.items()}
+    totals = RolloutTotals(tasks, sum(rates.values()) / len(rates), n * len(rates), 80.0)
+    return _as_report(totals, replan=0, wall_s=120.0)
 
 
 def test_metaworld_table_has_easy_hard_and_all_columns():
@@ -70,7 +87,7 @@ def _attempts(outcomes: list[bool]) -> list[dict[str, bool]]:
     return [{"reached": True, "grasped": ok, "placed": ok} for ok in outcomes]
 
 
-def _evaluated(outcomes_by_task: dict[str, list[list[bool]]], replan: int) -> dict:
+def _evaluated(outcomes_by_task: dict[str, list[list[bool]]], replan: int) -> EvaluationReport:
     """An evaluation report with rows whose attempts end as given (each list: one rollout's attempts in order)."""
     rows = []
     for task, rollouts in outcomes_by_task.items():
@@ -94,7 +111,7 @@ def _evaluated(outcomes_by_task: dict[str, list[list[bool]]], replan: int) -> di
                     attempt_planning_s=[0.1] * len(outcomes),
                 )
             )
-    return {**summarise(rows), "replan": replan, "wall_s": 60.0, "rows": [r.__dict__ for r in rows]}
+    return _as_report(summarise(rows), replan, 60.0, tuple(rows))
 
 
 def test_paper_protocol_row_replans_on_the_hard_tasks_only():
@@ -105,20 +122,23 @@ def test_paper_protocol_row_replans_on_the_hard_tasks_only():
     assert [(name, k) for name, k, _ in rows] == [("osvi-wm", 0), ("osvi-wm", 2), ("osvi-wm", "2, hard only")]
     (_, _, none), (_, _, full), (_, _, paper) = rows
     for task in MW_TASKS:
-        assert none["tasks"][task]["success"] == pytest.approx(1 / 3)
-        assert full["tasks"][task]["success"] == pytest.approx(2 / 3)
+        assert none.tasks[task].success == pytest.approx(1 / 3)
+        assert full.tasks[task].success == pytest.approx(2 / 3)
     hard = ("metaworld/window-open-v3", "metaworld/door-unlock-v3")
-    assert {t: paper["tasks"][t]["success"] for t in MW_TASKS} == pytest.approx(
+    assert {t: paper.tasks[t].success for t in MW_TASKS} == pytest.approx(
         {t: 2 / 3 if t in hard else 1 / 3 for t in MW_TASKS}
     )
-    assert paper["success"] == pytest.approx(0.5) and paper["replan_cut_tasks"] == sorted(
-        set(MW_TASKS) - set(hard)
+    assert paper.success == pytest.approx(0.5) and paper.replan_cut_tasks == tuple(
+        sorted(set(MW_TASKS) - set(hard))
     )
     table = render_markdown(rows, load_split("metaworld").test_groups)
     paper_line = table.strip().splitlines()[-1]
     assert paper_line.startswith("| osvi-wm | 2, hard only |") and "**50.0%**" in paper_line
     assert [row["replan"] for row in json_rows(rows)] == [0, 2, "2, hard only"]
     assert all("rows" not in row for row in json_rows(rows))
+    none_json, full_json, paper_json = json_rows(rows)
+    assert paper_json["replan_cut_tasks"] == sorted(set(MW_TASKS) - set(hard))
+    assert none_json["derived_from_replan"] == 2 and "derived_from_replan" not in full_json
     # No such row without re-plans to keep, nor for a split that names no replan groups.
     single = _evaluated({t: [[True]] for t in MW_TASKS}, replan=0)
     assert [k for _, k, _ in budget_rows("p", single, [0], load_split("metaworld"))] == [0]

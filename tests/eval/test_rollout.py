@@ -110,9 +110,9 @@ def test_evaluation_is_deterministic_and_stores_rollouts(tmp_path):
     _collect_bar_to_blue(tmp_path, 2)
     a = evaluate("oracle", ["pick_place/bar->blue"], 2, seed=3, data_dir=tmp_path, progress=False)
     b = evaluate("oracle", ["pick_place/bar->blue"], 2, seed=3, data_dir=tmp_path, progress=False)
-    strip = [(r["seed"], r["expert_episode_id"], r["success"], r["failure_stage"]) for r in a["rows"]]
-    assert strip == [(r["seed"], r["expert_episode_id"], r["success"], r["failure_stage"]) for r in b["rows"]]
-    assert a["success"] == 1.0
+    strip = [(r.seed, r.expert_episode_id, r.success, r.failure_stage) for r in a.rows]
+    assert strip == [(r.seed, r.expert_episode_id, r.success, r.failure_stage) for r in b.rows]
+    assert a.success == 1.0
     with EpisodeStore(tmp_path) as store:
         rows = store.catalog.rollouts(task="pick_place/bar->blue")
         assert len(rows) == 4
@@ -134,7 +134,7 @@ def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
     ck = write_tiny_checkpoint(tmp_path / "run-a" / "best.pt")
     for _ in range(2):  # the second evaluation finds the registration made by the first
         report = evaluate(str(ck), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False)
-        assert report["rows"][0]["planning_time_s"] > 0
+        assert report.rows[0].planning_time_s > 0
     with EpisodeStore(root) as store:
         rows = store.catalog.rollouts()
         assert [r.checkpoint_id for r in rows] == ["run-a/best", "run-a/best"]
@@ -178,7 +178,7 @@ def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_pa
     ck = str(write_tiny_checkpoint(tmp_path / "run" / "best.pt"))
     two = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=2, data_dir=root, progress=False)
     zero = evaluate(ck, ["pick_place/bar->blue"], 2, seed=1, replan=0, data_dir=root, progress=False)
-    assert max(r["replans"] for r in two["rows"]) == 2  # the untrained policy fails and re-plans
+    assert max(r.replans for r in two.rows) == 2  # the untrained policy fails and re-plans
     derived = with_budget(two, 0)
     fields = (
         "task",
@@ -193,15 +193,11 @@ def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_pa
         "replans",
         "attempt_stages",
     )
-    assert [{k: r[k] for k in fields} for r in derived["rows"]] == [
-        {k: r[k] for k in fields} for r in zero["rows"]
+    assert [{k: getattr(r, k) for k in fields} for r in derived.rows] == [
+        {k: getattr(r, k) for k in fields} for r in zero.rows
     ]
-    assert (
-        derived["replan"] == 0
-        and derived["derived_from_replan"] == 2
-        and derived["success"] == zero["success"]
-    )
-    assert with_budget(two, 2)["rows"] == two["rows"]
+    assert derived.replan == 0 and derived.derived_from_replan == 2 and derived.success == zero.success
+    assert with_budget(two, 2).rows == two.rows
     with pytest.raises(ValueError, match="cannot derive"):
         with_budget(zero, 1)
 
@@ -286,16 +282,16 @@ def test_an_evaluation_without_grasp_correction_says_so_and_grasps_as_planned(tm
     )
     tasks = ["pick_place/bar->blue"]
     report = evaluate("oracle", tasks, 1, 0, data_dir=str(root), progress=False, grasp="off")
-    assert report["grasp_correction"] == "off"
+    assert report.grasp_correction == "off"
     with EpisodeStore(root) as store:
         (rollout,) = store.catalog.rollouts()
         assert rollout.extra["grasp_correction"] == "off"
         events = json.loads((Path(rollout.path) / "events.json").read_text())
     assert events and not any(kind == "grasp_correction" for kind, _ in events)
     auto = evaluate("oracle", tasks, 1, 0, data_dir=str(root), progress=False)
-    assert auto["grasp_correction"] == "auto"
+    assert auto.grasp_correction == "auto"
     with EpisodeStore(root) as store:
-        (rollout,) = [r for r in store.catalog.rollouts() if r.eval_id == auto["eval_id"]]
+        (rollout,) = [r for r in store.catalog.rollouts() if r.eval_id == auto.eval_id]
         events = json.loads((Path(rollout.path) / "events.json").read_text())
     assert any(kind == "grasp_correction" for kind, _ in events), "pick-and-place corrects grasps by default"
     with pytest.raises(ValueError, match="unknown grasp correction"):
@@ -320,13 +316,13 @@ def test_a_rollout_does_not_depend_on_the_number_of_evaluation_workers(tmp_path)
         "an in-process evaluation leaves the caller's torch threads alone"
     )
     two = evaluate(ck, ["pick_place/bar->blue"], 2, seed=4, workers=2, data_dir=root, progress=False)
-    assert [(r["seed"], r["expert_episode_id"]) for r in one["rows"]] == [
-        (r["seed"], r["expert_episode_id"]) for r in two["rows"]
+    assert [(r.seed, r.expert_episode_id) for r in one.rows] == [
+        (r.seed, r.expert_episode_id) for r in two.rows
     ]
     with EpisodeStore(root) as store:
         rollouts = {r.id: r for r in store.catalog.rollouts()}
-        for a, b in zip(one["rows"], two["rows"], strict=True):
-            ra, rb = rollouts[a["rollout_id"]], rollouts[b["rollout_id"]]
+        for a, b in zip(one.rows, two.rows, strict=True):
+            ra, rb = rollouts[a.rollout_id], rollouts[b.rollout_id]
             with (
                 np.load(os.path.join(ra.path, "plans.npz")) as pa,
                 np.load(os.path.join(rb.path, "plans.npz")) as pb,

@@ -231,5 +231,5 @@ def test_the_shipped_metaworld_policy_presses_the_held_out_button(policy, tmp_pa
         == 0
     )
     report = evaluate(str(policy), [task], 10, 300, replan=0, data_dir=tmp_path, progress=False)
-    outcomes = [row["success"] for row in report["rows"]]
+    outcomes = [row.success for row in report.rows]
     assert len(outcomes) == 10 and sum(outcomes) >= MIN_BUTTON_PRESSES, outcomes
