@@ -1,4 +1,4 @@
-"""The teleop service of ``studio worker sim``: one :class:`~studio.backend.teleop.TeleopSession` per client.
+"""The teleop service of ``studio worker sim``: one :class:`~studio.backend.teleop_session.TeleopSession` per client.
 
 A client picks a session id, declares a liveliness token on ``studio/sim/<worker>/<session>/client``
 and sends :class:`~studio.backend.messages.OpenSession` to ``…/<session>/ctl``; every later request
@@ -31,7 +31,7 @@ from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.episode_transfer import EpisodeDestination
 from studio.backend.presence import WorkerPresence
-from studio.backend.teleop import SessionError, TeleopConfig, TeleopSession
+from studio.backend.teleop_session import SessionError, TeleopConfig, TeleopSession
 
 
 class SimWorker:

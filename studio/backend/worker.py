@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
 
         preload_llvm_users()  # before any EGL context: see studio.sim.rendering
         from studio.backend.sim_worker import SimWorker
-        from studio.backend.teleop import TeleopConfig
+        from studio.backend.teleop_session import TeleopConfig
 
         if args.data_dir and not args.own_data_dir:
             destination = EpisodeDestination(data_dir=args.data_dir)

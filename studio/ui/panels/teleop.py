@@ -23,7 +23,7 @@ import numpy as np
 from studio.backend import bus
 from studio.backend import messages as msg
 from studio.backend.forking import Continuation, DraftKeeper, new_draft_id, resume_draft
-from studio.backend.teleop import DEFAULT_ROLE
+from studio.backend.recording_sink import DEFAULT_ROLE
 from studio.backend.teleop_client import TeleopClient, choose_sim_worker
 from studio.data.drafts import DraftError
 from studio.data.splits import load_split

@@ -1,6 +1,9 @@
 """One client's teleop session on a sim worker: a simulator stepping in real time, driven over the bus.
 
-Three threads per session, so that nothing slow ever delays physics:
+The session owns the live control: opening and resetting the scene, end-effector targets and the gripper,
+the published poses and camera frames, and the owner token its commands must carry. What it records goes to
+its :class:`~studio.backend.recording_sink.RecordingSink`, which stores finished recordings and sends draft
+chunks on threads of its own. The session's two threads, so that nothing slow ever delays physics:
 
 * **sim** — one :meth:`studio.sim.env.SimEnv.step` per control tick (``control_dt``, 100 Hz by default),
   with the newest :class:`~studio.backend.messages.EeTarget` (latest wins: commands that arrive between
@@ -13,11 +16,6 @@ Three threads per session, so that nothing slow ever delays physics:
 * **render** — camera images for :class:`~studio.backend.messages.RequestFrame` /
   :class:`~studio.backend.messages.StreamFrames` and the frames of finished recordings, rendered on a
   second ``SimEnv`` (same scene, same task layout) set to a snapshot of the physics state.
-* **saver** — hands finished recordings to the store (a shared data directory or the bus); on failure
-  the recording is kept as a draft of the data directory (offered back by the Teleop panel's *Interrupted
-  recordings*), or, without one, written to the worker's spool directory — never lost. It also sends the ticks of a
-  recording that has a *draft* id as :class:`~studio.backend.messages.DraftChunk` messages every
-  :data:`DRAFT_PERIOD_S` of simulated time, so a client holds them even if this worker dies mid-recording.
 
 A session opened with a :class:`~studio.backend.messages.ForkStart` continues a recorded episode (a rollout
 forked at a tick, or a draft whose worker died): its last physics state is restored exactly and the
@@ -28,7 +26,6 @@ from __future__ import annotations
 
 import collections
 import hmac
-import secrets
 import threading
 import time
 import traceback
@@ -43,26 +40,12 @@ import zenoh
 
 from studio.backend import bus, keys
 from studio.backend import messages as msg
-from studio.backend.episode_transfer import EpisodeDestination, ShipError, recording_payload
+from studio.backend.episode_transfer import EpisodeDestination
+from studio.backend.recording_sink import DEFAULT_ROLE, MIN_RECORDED_STEPS, RecordingSink, StoppedRecording
 from studio.backend.scene_state import body_names, pose_frame, scene_geometry
-from studio.data.atomic_files import atomic_write
 from studio.sim.env import SimEnv, Simulator, make_env
-from studio.sim.recorder import Recorder, active_span
-from studio.sim.recording import Recording
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
-
-#: A recording shorter than this many control ticks is refused (the store wants ≥ 20 frames).
-MIN_RECORDED_STEPS = 20
-#: Recorded episodes get one video frame per this many seconds of simulated time (10 fps) ...
-FRAME_PERIOD_S = 0.1
-#: ... but never fewer than MIN_RECORDED_STEPS frames, nor more than this.
-MAX_RECORDED_FRAMES = 300
-#: A recording with a draft id sends its new ticks at least this often (simulated seconds).
-DRAFT_PERIOD_S = 0.1
-#: Default robot role of a teleop recording, by robot (the Sawyer and the human hand demonstrate, the Panda is
-#: the agent).
-DEFAULT_ROLE: dict[str, msg.Role] = {"sawyer": "expert", "panda": "agent", "hand": "expert"}
 
 
 #: The codes of :class:`~studio.backend.messages.ErrorReply`.
@@ -119,39 +102,6 @@ class _Snapshot:
     seed: int
 
 
-@dataclass
-class _FinishJob:
-    rows: list[dict]
-    states: list[np.ndarray]
-    task: str
-    seed: int
-    success: bool
-    role: msg.Role
-    n_frames: int
-    extra: dict
-    draft: str | None
-
-
-@dataclass
-class _DraftSend:
-    draft: str
-    first_step: int
-    rows: list[dict]
-    states: list[np.ndarray]
-
-
-def _rows_from_arrays(arrays: dict[str, np.ndarray]) -> list[dict]:
-    """Recorded arrays (name -> (T, ...)) back to the per-tick rows a Recorder keeps."""
-    n = len(arrays["time"])
-    return [
-        {
-            k: (float(v[t]) if np.ndim(v[t]) == 0 else np.asarray(v[t], dtype=np.float64))
-            for k, v in arrays.items()
-        }
-        for t in range(n)
-    ]
-
-
 class TeleopSession:
     """A teleop session; created by the sim worker when a client sends :class:`OpenSession`.
 
@@ -173,12 +123,9 @@ class TeleopSession:
         self.zsession = zsession
         #: The owner token the session's commands must carry (None: commands need none; tests only).
         self.owner = owner
-        self.drafts_dir = drafts_dir
         self.worker = worker
         self.id = session_id
         self.request = request
-        self.destination = destination
-        self.spool_dir = spool_dir
         self.config = config
         size = (request.image_height, request.image_width)
         fork = request.fork
@@ -219,29 +166,11 @@ class TeleopSession:
         self._last_seq = 0  # seq of the newest command taken
         self._calls: list[_Call] = []
         self._seq = 0
-        self._recorder: Recorder | None = None
-        self._role: msg.Role = DEFAULT_ROLE.get(request.robot, "expert")
-        self._extra: dict = {}  # stored with the recording's episode
-        self._draft: str | None = None  # the recording's draft id
-        self._draft_sent = 0  # ticks of the recording already sent as draft chunks
-        self._draft_queue: collections.deque[_DraftSend] = collections.deque()
-        self._draft_cond = threading.Condition()
-        if fork is not None:
-            self._recorder = Recorder(self.env)
-            self._recorder.rows = _rows_from_arrays({k: v.to_array() for k, v in fork.arrays.items()})
-            self._recorder.states = list(fork.states.to_array())
-            self._role = fork.role
-            self._extra = {"forked_from": dict(fork.origin)} if fork.origin else {}
-            self._draft, self._draft_sent = fork.draft, len(self._recorder.states)
-        self._trim_idle = fork is None
-        self._saving = 0
         self._snapshot = self._take_snapshot()
 
         self._render_cond = threading.Condition()
         self._render_jobs: collections.deque[tuple[str, Any]] = collections.deque()
         self._stream: msg.StreamFrames | None = None
-        self._save_queue: collections.deque[tuple[Recording, _FinishJob]] = collections.deque()
-        self._save_cond = threading.Condition()
 
         self._pose_pub = zsession.declare_publisher(
             keys.session_key(worker, session_id, "poses"),
@@ -252,7 +181,21 @@ class TeleopSession:
         self._frame_pub = zsession.declare_publisher(
             keys.session_key(worker, session_id, "frames"), congestion_control=zenoh.CongestionControl.DROP
         )
-        self._draft_pub = zsession.declare_publisher(keys.session_key(worker, session_id, "draft"))
+        #: What the session records, and where its finished recordings go.
+        self.sink = RecordingSink(
+            zsession,
+            worker,
+            session_id,
+            destination,
+            spool_dir,
+            drafts_dir,
+            self._publish_status,
+            self.state,
+            DEFAULT_ROLE.get(request.robot, "expert"),
+            fork,
+        )
+        if fork is not None:
+            self.sink.continue_fork(self.env, fork)
         self._status_pub = zsession.declare_publisher(keys.session_key(worker, session_id, "status"))
         self._cmd_sub = bus.declare_subscriber(
             zsession, keys.session_key(worker, session_id, "cmd"), self._on_cmd, msg.EeTarget
@@ -260,11 +203,10 @@ class TeleopSession:
         self._threads = [
             threading.Thread(target=self._sim_loop, name=f"sim-{session_id}", daemon=True),
             threading.Thread(target=self._render_loop, name=f"render-{session_id}", daemon=True),
-            threading.Thread(target=self._save_loop, name=f"save-{session_id}", daemon=True),
-            threading.Thread(target=self._draft_loop, name=f"draft-{session_id}", daemon=True),
         ]
         for t in self._threads:
             t.start()
+        self.sink.start_threads()
 
     # ------------------------------------------------------------------ descriptions
     def _make_env(self, scene: str, robot: str, size: tuple[int, int]) -> Simulator:
@@ -328,16 +270,16 @@ class TeleopSession:
 
     def state(self, message: str = "") -> msg.SessionState:
         env = self.env
-        rec = self._recorder
+        recorded = self.sink.recorded_steps
         task, seed = self._episode()
         return msg.SessionState(
             session=self.id,
-            state="closed" if self._closed else ("recording" if rec is not None else "idle"),
+            state="closed" if self._closed else ("recording" if recorded is not None else "idle"),
             task=task,
             seed=int(seed),
             step=env.steps,
-            recorded_steps=0 if rec is None else len(rec),
-            saving=self._saving,
+            recorded_steps=0 if recorded is None else recorded,
+            saving=self.sink.saving,
             success=bool(env.success()),
             message=message[:4000],
         )
@@ -466,27 +408,8 @@ class TeleopSession:
             env.step(np.asarray(cmd.pos, dtype=np.float64), cmd.gripper)
         else:
             env.step(env.target, env.gripper_cmd)
-        if self._recorder is not None:
-            self._recorder.tick()
-            if (
-                self._draft is not None
-                and (len(self._recorder) - self._draft_sent) * env.control_dt >= DRAFT_PERIOD_S
-            ):
-                self._queue_draft()
+        self.sink.tick(env.control_dt)
         self._publish_pose(-1 if cmd is None else cmd.seq)
-
-    def _queue_draft(self) -> None:
-        """Hand the recording's unsent ticks to the saver thread as one draft chunk (sim thread)."""
-        rec, draft = self._recorder, self._draft
-        if rec is None or draft is None or len(rec) <= self._draft_sent:
-            return
-        send = _DraftSend(
-            draft, self._draft_sent, rec.rows[self._draft_sent :], rec.states[self._draft_sent :]
-        )
-        self._draft_sent = len(rec)
-        with self._draft_cond:
-            self._draft_queue.append(send)
-            self._draft_cond.notify()
 
     def _publish_pose(self, ack_seq: int) -> None:
         env = self.env
@@ -516,8 +439,7 @@ class TeleopSession:
 
     def _reset(self, task: str | None, seed: int | None) -> msg.SessionInfo:
         note = ""
-        if self._recorder is not None:
-            self._recorder, self._draft, self._extra = None, None, {}
+        if self.sink.discard():
             note = "the unsaved recording was discarded by the reset"
         current_task, current_seed = self._episode()
         try:
@@ -532,60 +454,29 @@ class TeleopSession:
         return self.info()
 
     def _start_recording(self, request: msg.StartRecording) -> msg.SessionState:
-        if self._recorder is not None:
+        if self.sink.recording:
             raise SessionError("conflict", "already recording; stop or discard first")
         if request.reset:
             self.env.reset(*self._episode())
             with self._cond:
                 self._cmd, self._cmd_new = None, False
             self._publish_pose(-1)
-        self._role = request.role or DEFAULT_ROLE.get(self.env.robot, "expert")
-        self._recorder = Recorder(self.env)
-        self._recorder.tick()
-        self._extra = {}
-        self._trim_idle = True
-        self._draft, self._draft_sent = request.draft, 0
+        self.sink.start(self.env, request.role, request.draft)
         state = self.state("recording")
         self._publish_status(state)
         return state
 
     def _stop_recording(self, success: bool | None = None) -> msg.SessionState:
-        rec = self._recorder
-        if rec is None:
+        recorded = self.sink.recorded_steps
+        if recorded is None:
             raise SessionError("conflict", "not recording")
-        if len(rec) < MIN_RECORDED_STEPS:
+        if recorded < MIN_RECORDED_STEPS:
             raise SessionError(
                 "conflict",
-                f"recording too short: {len(rec)} steps, need at least {MIN_RECORDED_STEPS}; keep going",
+                f"recording too short: {recorded} steps, need at least {MIN_RECORDED_STEPS}; keep going",
             )
-        env = self.env
         task, seed = self._episode()
-        # A recording started here is stored from just before its first motion to just after its last; one
-        # that continues an episode (a fork, a resumed draft) keeps every tick its draft holds.
-        start, end = active_span(rec.rows, env.control_dt) if self._trim_idle else (0, len(rec))
-        if end - start < MIN_RECORDED_STEPS:
-            start, end = 0, len(rec)
-        rows, states = rec.rows[start:end], rec.states[start:end]
-        n_frames = int(
-            np.clip(
-                round(len(rows) * env.control_dt / FRAME_PERIOD_S), MIN_RECORDED_STEPS, MAX_RECORDED_FRAMES
-            )
-        )
-        self._queue_draft()  # the draft holds the whole recording before it is stored
-        job = _FinishJob(
-            rows,
-            states,
-            task,
-            int(seed),
-            bool(env.success() if success is None else success),
-            self._role,
-            n_frames,
-            dict(self._extra),
-            self._draft,
-        )
-        self._recorder, self._draft, self._extra = None, None, {}
-        with self._cond:
-            self._saving += 1
+        job = self.sink.stop(self.env, task, int(seed), success)
         with self._render_cond:
             self._render_jobs.append(("finish", job))
             self._render_cond.notify()
@@ -594,9 +485,8 @@ class TeleopSession:
         return state
 
     def _discard_recording(self) -> msg.SessionState:
-        if self._recorder is None:
+        if not self.sink.discard():
             raise SessionError("conflict", "not recording")
-        self._recorder, self._draft, self._extra = None, None, {}
         state = self.state("recording discarded")
         self._publish_status(state)
         return state
@@ -655,23 +545,15 @@ class TeleopSession:
                     finally:
                         query.drop()
                 else:
-                    finish: _FinishJob = job[1]
+                    stopped: StoppedRecording = job[1]
                     try:
-                        if layout != (finish.task, finish.seed):
-                            render_env.reset(finish.task, finish.seed)
-                            layout = (finish.task, finish.seed)
-                        rec = Recorder(render_env)
-                        rec.rows, rec.states = finish.rows, finish.states
-                        recording = rec.finish(n_frames=finish.n_frames, success=finish.success)
-                        with self._save_cond:
-                            self._save_queue.append((recording, finish))
-                            self._save_cond.notify()
+                        if layout != (stopped.task, stopped.seed):
+                            render_env.reset(stopped.task, stopped.seed)
+                            layout = (stopped.task, stopped.seed)
+                        self.sink.store(stopped.render(render_env), stopped)
                     except Exception as e:
                         bus.log.exception("session %s: finishing a recording failed", self.id)
-                        self._saving_done()
-                        self._publish_status(
-                            msg.EpisodeNotSaved(session=self.id, reason=f"rendering failed: {e}", kept_at="")
-                        )
+                        self.sink.not_rendered(e)
         finally:
             with self._render_cond:
                 pending = list(self._render_jobs)
@@ -692,140 +574,6 @@ class TeleopSession:
         mujoco.mj_forward(env.model, env.data)
         return (snap.task, snap.seed)
 
-    # ------------------------------------------------------------------ saver thread
-    def _saving_done(self) -> None:
-        with self._cond:
-            self._saving = max(0, self._saving - 1)
-
-    def _save_loop(self) -> None:
-        while True:
-            with self._save_cond:
-                while not self._save_queue:
-                    if self._closed and not self._render_busy_with_finish():
-                        return
-                    self._save_cond.wait(0.5)
-                recording, finish = self._save_queue.popleft()
-            role, more, draft = finish.role, finish.extra, finish.draft
-            extra = {"session": self.id, "worker": self.worker, **more}
-            try:
-                episode = self.destination.save(recording, role=role, source="teleop", extra=extra)
-                self._saving_done()
-                self._publish_status(
-                    msg.EpisodeSaved(
-                        session=self.id,
-                        episode=episode,
-                        task=recording.task,
-                        role=role,
-                        steps=recording.num_steps,
-                        frames=len(recording.frames),
-                        success=bool(recording.success),
-                        via=self.destination.via,
-                        draft=draft,
-                    )
-                )
-            except ShipError as e:
-                self._saving_done()
-                self._publish_status(
-                    msg.EpisodeNotSaved(session=self.id, reason=str(e), kept_at=str(e.kept_at), draft=draft)
-                )
-            except Exception as e:
-                bus.log.error(
-                    "session %s: storing a recording failed: %s", self.id, bus.one_line(e, with_type=True)
-                )
-                bus.log.debug("session %s: storing a recording failed", self.id, exc_info=True)
-                kept = self._rescue(recording, finish, extra)
-                self._saving_done()
-                self._publish_status(
-                    msg.EpisodeNotSaved(
-                        session=self.id, reason=f"{type(e).__name__}: {e}", kept_at=kept, draft=draft
-                    )
-                )
-            self._publish_status(self.state())
-
-    def _draft_loop(self) -> None:
-        """Send queued draft chunks, in order (reliably: a chunk is never dropped for a newer one)."""
-        while True:
-            with self._draft_cond:
-                while not self._draft_queue:
-                    if self._closed:
-                        return
-                    self._draft_cond.wait(0.5)
-                send = self._draft_queue.popleft()
-            try:
-                fields = send.rows[0].keys()
-                chunk = msg.DraftChunk(
-                    session=self.id,
-                    draft=send.draft,
-                    first_step=send.first_step,
-                    states=msg.ArrayData.of(np.stack(send.states)),
-                    arrays={
-                        k: msg.ArrayData.of(np.stack([np.asarray(r[k], dtype=np.float64) for r in send.rows]))
-                        for k in fields
-                    },
-                )
-                self._draft_pub.put(msg.encode(chunk))
-            except (zenoh.ZError, ValueError) as e:
-                bus.log.error("session %s: a draft chunk could not be sent: %s", self.id, e)
-
-    def _render_busy_with_finish(self) -> bool:
-        with self._render_cond:
-            return any(kind == "finish" for kind, _ in self._render_jobs) or self._saving > len(
-                self._save_queue
-            )
-
-    def _rescue(self, recording: Recording, finish: _FinishJob, extra: dict) -> str:
-        """Keep a recording the store refused, so nothing is lost: as a draft of the data dir (which the studio's
-        Teleop panel offers back under *Interrupted recordings*), else in the spool directory. Returns where."""
-        if self.drafts_dir is not None:
-            try:
-                return self._keep_as_draft(recording, finish, extra)
-            except (OSError, ValueError) as e:
-                bus.log.error(
-                    "session %s: could not keep the recording as a draft: %s", self.id, bus.one_line(e)
-                )
-        try:
-            self.spool_dir.mkdir(parents=True, exist_ok=True)
-            path = self.spool_dir / f"unsaved-{self.id}-{int(time.time() * 1000)}.recording"
-            atomic_write(path, msg.encode(recording_payload(recording)))
-            return str(path)
-        except OSError as e:
-            bus.log.error("could not even spool the recording: %s", e)
-            return ""
-
-    def _keep_as_draft(self, recording: Recording, finish: _FinishJob, extra: dict) -> str:
-        from studio.data.drafts import DraftError, RecordingDrafts
-
-        assert self.drafts_dir is not None
-        drafts = RecordingDrafts(self.drafts_dir)
-        n = len(finish.states)
-        if finish.draft is not None:  # the client journaled it: kept already if its draft holds every tick
-            try:
-                if drafts.next_step(finish.draft) >= n:
-                    return f"draft {finish.draft} (Teleop: Interrupted recordings)"
-            except (DraftError, OSError):
-                pass
-        draft = f"unsaved-{int(time.time())}-{secrets.token_hex(3)}"
-        header = {
-            "scene": recording.scene,
-            "robot": recording.robot,
-            "task": recording.task,
-            "seed": int(recording.seed),
-            "control_dt": float(recording.control_dt),
-            "role": finish.role,
-            "forked_from": extra.get("forked_from"),
-            "session": self.id,
-        }
-        drafts.create(draft, header)
-        try:
-            arrays = {
-                k: np.stack([np.asarray(r[k], dtype=np.float64) for r in finish.rows]) for k in finish.rows[0]
-            }
-            drafts.append(draft, 0, np.stack(finish.states), arrays)
-        except BaseException:
-            drafts.discard(draft)
-            raise
-        return f"draft {draft} (Teleop: Interrupted recordings)"
-
     # ------------------------------------------------------------------ closing
     def close(self, wait_s: float = 60.0) -> None:
         """Stop the session; recordings being finished or stored are completed first (up to ``wait_s``)."""
@@ -836,17 +584,15 @@ class TeleopSession:
             self._cond.notify_all()
         with self._render_cond:
             self._render_cond.notify_all()
-        with self._save_cond:
-            self._save_cond.notify_all()
-        with self._draft_cond:
-            self._draft_cond.notify_all()
+        self.sink.close()
         deadline = time.monotonic() + wait_s
-        for t in self._threads:
+        for t in self._threads + self.sink.threads:
             t.join(max(0.1, deadline - time.monotonic()))
         self._publish_status(self.state("closed"))
-        for entity in (self._cmd_sub, self._pose_pub, self._frame_pub, self._status_pub, self._draft_pub):
+        for entity in (self._cmd_sub, self._pose_pub, self._frame_pub, self._status_pub):
             try:
                 entity.undeclare()
             except zenoh.ZError:
                 pass
+        self.sink.undeclare()
         self.env.close()
