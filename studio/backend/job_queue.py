@@ -77,6 +77,8 @@ MAX_UNFINISHED = 100_000
 KEEP_FINISHED = 500
 #: Queued jobs per queue whose changed position is pushed on ``…/status``.
 PUSHED_POSITIONS = 100
+#: How long a worker's report that its job ended waits for the result it published just before.
+RESULT_WAIT_S = 5.0
 
 
 @dataclass
@@ -628,7 +630,30 @@ class JobQueue:
                 if cur.state == "running" and cur.worker == status.worker:
                     job.status = status
                     return
+            if (
+                source is None
+                and status.terminal
+                and status.has_result
+                and not self._wait_result_locked(job, status)
+            ):
+                return  # the job moved on while the result was awaited
             self._set_status_locked(job, status)
+
+    def _wait_result_locked(self, job: _Job, status: msg.JobStatus) -> bool:
+        """Wait (on a report's thread, the lock released meanwhile) until the result the worker published before
+        ``status`` is in: results and reports arrive on different subscribers' threads, and a watcher that sees
+        the job end reads its result next. False if the job's status changed meanwhile."""
+        cur = job.status
+        deadline = time.monotonic() + RESULT_WAIT_S
+        while job.result is None or job.result.attempt != status.attempt:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                bus.log.warning(
+                    "job %s ended without its result arriving within %.0f s", status.job, RESULT_WAIT_S
+                )
+                break
+            self._cond.wait(left)
+        return job.status is cur
 
     def _on_result(self, result: msg.JobResult, sample: zenoh.Sample | None) -> None:
         with self._cond:
@@ -639,6 +664,7 @@ class JobQueue:
                 return  # the attempt's result is in; a later copy does not replace it
             job.result = result
             self._record_locked(job)
+            self._cond.notify_all()  # a report that ended the attempt may be waiting for it
 
     def _on_progress(self, progress: msg.JobProgress, sample: zenoh.Sample) -> None:
         with self._cond:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, cast
 
+import msgspec
 import zenoh
 
 from studio.backend import bus, keys
@@ -456,7 +457,9 @@ class JobRunner:
                 msg.encode(result_msg)
             except (TypeError, ValueError) as e:
                 result_msg, state, reason = None, "failed", f"result is not serialisable: {e}"
-        status = self._status(assign, state, reason)
+        status = msgspec.structs.replace(
+            self._status(assign, state, reason), has_result=result_msg is not None
+        )
         with self._lock:
             self._current = None
             shutting_down = self._shutting_down

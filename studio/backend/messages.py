@@ -475,6 +475,9 @@ class JobStatus(Message, frozen=True):
     spec: dict[str, Any] = {}
     requeue_on_worker_loss: bool = False
     max_attempts: Annotated[int, msgspec.Meta(ge=1, le=100)] = 3
+    #: The worker published the attempt's JobResult before this status: the queue waits for the result before it
+    #: says the job ended, so that whoever sees the end can read the result.
+    has_result: bool = False
 
     @property
     def terminal(self) -> bool:

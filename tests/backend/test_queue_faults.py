@@ -77,6 +77,36 @@ def test_a_forged_report_neither_blocks_the_queue_nor_ends_a_running_job(hub, wo
         attacker.close()
 
 
+def test_a_job_ends_only_once_the_result_its_worker_sent_before_the_end_is_in(hub, workers, tmp_path):
+    """A worker publishes a job's result, then its end; the hub hears the two on different subscribers' threads,
+    so the end can be handled first. A watcher that sees the end reads the result next: the queue holds the end
+    until the result is in (seen before: `succeeded`, then no result, in one no-shared-disk run in five)."""
+    workers.start("train", "t1")
+    wait_worker(hub.directory, "t1")
+    peer = bus.open_session(bus.BusConfig.worker([hub.endpoint]))
+    client = JobClient(hub.session)
+    try:
+        job = client.submit(
+            "count", {"steps": 600, "step_s": 0.05, "run_dir": str(tmp_path / "a")}, worker_kind="train"
+        )
+        with client.watch(job.job) as watch:
+            watch.wait(lambda w: w.status is not None and w.status.state == "running", 20)
+            end = msgspec_replace(
+                _forged(job.job, "succeeded", "t1"), submitted_at=watch.status.submitted_at, has_result=True
+            )
+            peer.put(keys.job_key(job.job, "report"), msg.encode(end))  # the end, before its result
+            time.sleep(0.5)
+            assert hub.jobs.get(job.job).state == "running", "the end is held until its result is in"
+            result = msg.JobResult(job=job.job, attempt=1, result={"counted": 7})
+            peer.put(keys.job_key(job.job, "result"), msg.encode(result))
+            final = watch.wait(timeout=10)
+        assert final is not None and final.state == "succeeded"
+        found = client.result(job.job)
+        assert found is not None and found.result == {"counted": 7}
+    finally:
+        peer.close()
+
+
 def msgspec_replace(status: msg.JobStatus, **changes) -> msg.JobStatus:
     import msgspec
 
