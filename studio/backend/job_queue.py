@@ -642,8 +642,9 @@ class JobQueue:
     def _wait_result_locked(self, job: _Job, status: msg.JobStatus) -> bool:
         """Wait (on a report's thread, the lock released meanwhile) until the result the worker published before
         ``status`` is in: results and reports arrive on different subscribers' threads, and a watcher that sees
-        the job end reads its result next. False if the job's status changed meanwhile."""
-        cur = job.status
+        the job end reads its result next. False if the job got as far as ``status`` or further meanwhile (another
+        end, a later attempt); a repeated ``running`` of the same attempt (the worker's answer to its assignment
+        can arrive after its end) does not count."""
         deadline = time.monotonic() + RESULT_WAIT_S
         while job.result is None or job.result.attempt != status.attempt:
             left = deadline - time.monotonic()
@@ -653,7 +654,7 @@ class JobQueue:
                 )
                 break
             self._cond.wait(left)
-        return job.status is cur
+        return msg.status_rank(job.status) < msg.status_rank(status)
 
     def _on_result(self, result: msg.JobResult, sample: zenoh.Sample | None) -> None:
         with self._cond:

@@ -107,6 +107,45 @@ def test_a_job_ends_only_once_the_result_its_worker_sent_before_the_end_is_in(hu
         peer.close()
 
 
+def test_a_held_end_survives_the_workers_running_answer_arriving_after_it(
+    hub, workers, tmp_path, monkeypatch
+):
+    """A job that ends within a millisecond: its worker's answer to the assignment (``running``) can reach the
+    queue after the end, while the end waits for its result. The end must still be applied (seen: a collect job
+    with nothing to make stayed ``running`` for good, in a parallel test run)."""
+    workers.start("train", "t1")
+    wait_worker(hub.directory, "t1")
+    peer = bus.open_session(bus.BusConfig.worker([hub.endpoint]))
+    client = JobClient(hub.session)
+    request = bus.request
+
+    def answer_after_the_end(session, key, message, *args, **kwargs):
+        reply = request(session, key, message, *args, **kwargs)
+        if key.endswith("/assign") and isinstance(message, msg.JobAssign):
+            end = msgspec_replace(
+                _forged(message.job, "succeeded", "t1"), submitted_at=message.submitted_at, has_result=True
+            )
+            peer.put(keys.job_key(message.job, "report"), msg.encode(end))  # the end, before its result
+            time.sleep(0.3)  # the end is now held for its result; the assignment's answer arrives after it
+        return reply
+
+    monkeypatch.setattr(bus, "request", answer_after_the_end)
+    try:
+        job = client.submit(
+            "count", {"steps": 600, "step_s": 0.05, "run_dir": str(tmp_path / "a")}, worker_kind="train"
+        )
+        with client.watch(job.job) as watch:
+            watch.wait(lambda w: w.status is not None and w.status.state == "running", 20)
+            time.sleep(0.3)
+            peer.put(
+                keys.job_key(job.job, "result"), msg.encode(msg.JobResult(job=job.job, attempt=1, result={}))
+            )
+            final = watch.wait(timeout=10)
+        assert final is not None and final.state == "succeeded"
+    finally:
+        peer.close()
+
+
 def msgspec_replace(status: msg.JobStatus, **changes) -> msg.JobStatus:
     import msgspec
 
