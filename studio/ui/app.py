@@ -160,6 +160,7 @@ class StudioTab:
             finally:
                 with self._actions_lock:
                     self._actions.remove(what)
+                self.app.note_change()
                 log.debug("tab %s: %s took %.2f s", self.client.client_id, what, time.monotonic() - started)
 
         if self._closed.is_set():
@@ -321,6 +322,8 @@ class StudioApp:
             self._dataset_mark: tuple | None = None
             self.tabs: dict[int, StudioTab] = {}
             self._lock = threading.Lock()
+            self._changes = threading.Condition()
+            self._change_count = 0
             self._geometry: dict[tuple, msg.SceneGeometry] = {}
             self._stop = threading.Event()
             self.server = viser.ViserServer(host=host, port=port, label="OSVI Studio", verbose=False)
@@ -370,6 +373,7 @@ class StudioApp:
                 tabs = list(self.tabs.values())
             for tab in tabs:
                 tab.refresh()
+            self.note_change()
 
     def _check_dataset(self) -> None:
         ids = self.store.catalog.episode_ids()
@@ -393,6 +397,33 @@ class StudioApp:
         with self._lock:
             geometry = self._geometry.setdefault(key, geometry)
         return geometry, poses
+
+    # ------------------------------------------------------------------ changes
+    def note_change(self) -> None:
+        """Wake :meth:`wait_until`'s waiters: a refresh of every tab, or a tab's action, has just finished."""
+        with self._changes:
+            self._change_count += 1
+            self._changes.notify_all()
+
+    def wait_until(self, predicate: Callable[[], Any], timeout: float) -> Any:
+        """Block until ``predicate()`` is truthy and return its value (None after ``timeout`` seconds).
+
+        It is checked now and again each time the app has changed what it shows: after each refresh of the
+        tabs (``REFRESH_HZ``) and each finished tab action. For scripts and tests that drive the app and wait
+        on what it shows, without guessing a delay."""
+        deadline = time.monotonic() + timeout
+        while True:
+            with self._changes:
+                seen = self._change_count
+            value = predicate()
+            if value:
+                return value
+            with self._changes:
+                while self._change_count == seen:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        return None
+                    self._changes.wait(left)
 
     # ------------------------------------------------------------------ lifecycle
     def wait_for_workers(self, timeout: float = 60.0) -> bool:

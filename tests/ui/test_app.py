@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-import time
 from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
@@ -28,28 +27,27 @@ def _bare_tab() -> StudioTab:
     tab._executor = ThreadPoolExecutor(max_workers=1)
     tab._actions, tab._actions_lock = [], threading.Lock()
     tab._notices, tab._notices_lock = {}, threading.Lock()
-    tab.app = SimpleNamespace()
+    tab.app = SimpleNamespace(note_change=lambda: None)
     return tab
 
 
-def _until(predicate, timeout=5.0):
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.01)
+def _finished(tab: StudioTab) -> None:
+    """Wait until every action the tab took so far has finished: its executor runs them in order, one at a time."""
+    tab._executor.submit(lambda: None).result(timeout=5)
 
 
 def test_a_queued_action_is_announced_and_runs_after_the_first():
     tab = _bare_tab()
     release, order = threading.Event(), []
     tab.run(lambda: (release.wait(5), order.append("slow")), "opening the session")
-    _until(lambda: tab.actions == ("opening the session",))
+    assert tab.actions == ("opening the session",)  # taken at once, before it runs
     assert tab.client.notes == []  # nothing ahead of the first one
     tab.run(lambda: order.append("save"), "saving the episode")
     assert tab.actions == ("opening the session", "saving the episode")
     assert tab.client.notes == [("Waiting", "saving the episode starts after opening the session", None)]
     release.set()
-    _until(lambda: tab.actions == ())
+    _finished(tab)
+    assert tab.actions == ()
     assert order == ["slow", "save"]
     tab._executor.shutdown()
 
@@ -61,7 +59,8 @@ def test_a_failing_action_is_notified_and_leaves_the_queue():
         raise ValueError("no demonstration of pick_place/bar->blue yet")
 
     tab.run(fail, "planning")
-    _until(lambda: tab.actions == ())
+    _finished(tab)
+    assert tab.actions == ()
     (title, body, color), *_ = tab.client.notes
     assert title == "Could not finish planning" and "no demonstration" in body and color == "red"
     tab._closed.set()
