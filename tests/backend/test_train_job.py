@@ -17,32 +17,11 @@ from .conftest import wait_worker
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from data_fixtures import make_recording
+from tiny_network import TINY_BATCHED
 
 pytestmark = pytest.mark.timeout(300)
 
 TASKS = ("pick_place/cube->red", "pick_place/cube->green")
-TINY = [
-    "model.image_size=[48, 64]",
-    "model.n_expert_frames=4",
-    "model.n_agent_frames=3",
-    "model.encoder_stages=2",
-    "model.state_channels=16",
-    "model.action_blocks=1",
-    "model.action_heads=2",
-    "model.action_attn_dim=16",
-    "model.action_mlp_dim=32",
-    "model.wm_blocks=1",
-    "model.wm_heads=2",
-    "model.wm_width=32",
-    "model.wm_mlp_dim=64",
-    "model.head_hidden=64",
-    "train.batch_size=4",
-    "train.num_workers=0",
-    "train.log_every=1",
-    "train.checkpoint_every=2",
-    "train.val_every=1000",
-    "train.pairs_per_expert=2",
-]
 
 
 @pytest.fixture
@@ -94,7 +73,7 @@ def test_train_job_trains_reports_checkpoints_and_cancels(hub, workers, dataset,
         "run_dir": str(tmp_path / "run"),
         "steps": 4,
         "scene": str(split),
-        "overrides": TINY,
+        "overrides": TINY_BATCHED,
         "threads": 1,
     }
     job = client.submit("train", spec)

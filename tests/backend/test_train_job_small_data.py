@@ -20,30 +20,11 @@ from .conftest import wait_worker
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from data_fixtures import make_recording
+from tiny_network import TINY
 
 pytestmark = pytest.mark.timeout(400)
 
 RED, GREEN = "pick_place/cube->red", "pick_place/cube->green"
-TINY = [
-    "model.image_size=[48, 64]",
-    "model.n_expert_frames=4",
-    "model.n_agent_frames=3",
-    "model.encoder_stages=2",
-    "model.state_channels=16",
-    "model.action_blocks=1",
-    "model.action_heads=2",
-    "model.action_attn_dim=16",
-    "model.action_mlp_dim=32",
-    "model.wm_blocks=1",
-    "model.wm_heads=2",
-    "model.wm_width=32",
-    "model.wm_mlp_dim=64",
-    "model.head_hidden=64",
-    "train.num_workers=0",
-    "train.log_every=1",
-    "train.checkpoint_every=2",
-    "train.val_every=1000",
-]
 
 
 def _split(path: Path) -> Path:
