@@ -22,6 +22,7 @@ import time
 import numpy as np
 import torch
 
+from studio.model.augment import augment_batch
 from studio.model.batching import Batch
 from studio.model.config import PRESETS, preset
 from studio.model.osvi_wm import OSVIWM, count_parameters
@@ -122,6 +123,78 @@ def _train_step_times(model, run, batch, warmup, reps, device) -> list[float]:
     return _time(step, warmup, reps)
 
 
+def _step_profile(model, run, batch, warmup, reps, device) -> dict[str, float]:
+    """Where one training step's time goes (median milliseconds of each part, measured on its own).
+
+    ``encoder_fwd_bwd``: the encoder's forward and backward over the expert videos and the agents' first frames;
+    ``targets_fwd``: encoding the future agent frames as world-model targets (no gradient); ``step_fwd_bwd``: the
+    whole forward, losses and backward; ``rest_fwd_bwd``: what of it is neither (π, 𝒲, pooling, head, losses);
+    ``augment``: the batch's augmentation; ``optimizer``: gradient clipping and the AdamW step."""
+    model.train()
+    batch = batch.to(device)
+    cfg = run.train
+    g = torch.Generator().manual_seed(0)
+    u, n = batch.expert_frames.shape[:2]
+    first = torch.cat(
+        [batch.expert_frames.reshape(u * n, *batch.expert_frames.shape[2:]), batch.agent_frames[:, 0]]
+    )
+    target_idx = model.target_frame_indices() if model.world_model is not None else []
+    future = batch.agent_frames[:, target_idx].flatten(0, 1) if target_idx else None
+    trained = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(trained, lr=cfg.lr_max, fused=True)
+
+    dtype = torch.bfloat16 if cfg.precision == "bf16" else None
+
+    def autocast():  # the precision compute_losses runs the model in
+        return torch.autocast(device_type=device.type, dtype=dtype, enabled=dtype is not None)
+
+    def encoder() -> None:
+        with autocast():
+            states = model.encode(first)
+        states.float().sum().backward()
+        model.zero_grad(set_to_none=True)
+
+    def targets() -> None:
+        if future is not None:
+            with torch.no_grad(), autocast():
+                model.encode(future)
+
+    def whole() -> None:
+        loss, _ = compute_losses(model, model, batch, run, 0, 1000, None)
+        loss.backward()
+
+    def augment() -> None:
+        augment_batch(
+            batch.expert_frames,
+            batch.agent_frames,
+            batch.K,
+            batch.expert_ids,
+            batch.expert_tasks,
+            batch.agent_tasks,
+            cfg,
+            g,
+        )
+
+    def optimizer() -> None:
+        torch.nn.utils.clip_grad_norm_(trained, cfg.grad_clip)
+        opt.step()
+
+    def median_ms(fn) -> float:
+        return 1e3 * statistics.median(_time(fn, warmup, reps))
+
+    out = {
+        "augment": median_ms(augment),
+        "encoder_fwd_bwd": median_ms(encoder),
+        "targets_fwd": median_ms(targets),
+        "step_fwd_bwd": median_ms(lambda: (whole(), model.zero_grad(set_to_none=True))),
+    }
+    whole()  # gradients for the optimiser's step
+    out["optimizer"] = median_ms(optimizer)
+    model.zero_grad(set_to_none=True)
+    out["rest_fwd_bwd"] = max(0.0, out["step_fwd_bwd"] - out["encoder_fwd_bwd"] - out["targets_fwd"])
+    return {k: round(v, 1) for k, v in out.items()}
+
+
 def measure(args: argparse.Namespace) -> dict:
     torch.set_num_threads(args.threads)
     overrides = [f"train.precision={args.precision}"]
@@ -157,6 +230,7 @@ def measure(args: argparse.Namespace) -> dict:
         model, run, _batch(args.batch, shared_u, n, m, size, g), args.warmup, args.reps, device
     )
 
+    profile = _step_profile(model, run, batch, args.warmup, args.reps, device)
     step_s = statistics.median(train_times)
     result = {
         "target": "model",
@@ -181,6 +255,7 @@ def measure(args: argparse.Namespace) -> dict:
         "plan_latency_ms": round(1e3 * statistics.median(plan_times), 2),
         "plan_latency_ms_min": round(1e3 * min(plan_times), 2),
         "replan_ms": round(1e3 * statistics.median(replan_times), 2),
+        "step_profile_ms": profile,
         "load_average": [round(v, 2) for v in os.getloadavg()],
         "torch": torch.__version__,
     }

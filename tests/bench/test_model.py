@@ -27,3 +27,13 @@ def test_measure_reports_throughput_latency_and_size():
     ]  # cpu: trunk to layer2, stride 8
     assert result["params"] > 1_000_000 and result["batch"] == 2 and result["n_expert"] == 10
     assert result["reference"]["train_samples_per_s"] == 2.5 and "fwd_bwd_speedup_vs_reference_min" in result
+    profile = result["step_profile_ms"]
+    assert set(profile) == {
+        "augment",
+        "encoder_fwd_bwd",
+        "targets_fwd",
+        "step_fwd_bwd",
+        "rest_fwd_bwd",
+        "optimizer",
+    }
+    assert profile["step_fwd_bwd"] >= profile["encoder_fwd_bwd"] > 0 and profile["targets_fwd"] > 0
