@@ -163,6 +163,10 @@ def _step_profile(model, run, batch, warmup, reps, device) -> dict[str, float]:
         loss, _ = compute_losses(model, model, batch, run, 0, 1000, None)
         loss.backward()
 
+    def whole_then_clear() -> None:
+        whole()
+        model.zero_grad(set_to_none=True)
+
     def augment() -> None:
         augment_batch(
             batch.expert_frames,
@@ -186,7 +190,7 @@ def _step_profile(model, run, batch, warmup, reps, device) -> dict[str, float]:
         "augment": median_ms(augment),
         "encoder_fwd_bwd": median_ms(encoder),
         "targets_fwd": median_ms(targets),
-        "step_fwd_bwd": median_ms(lambda: (whole(), model.zero_grad(set_to_none=True))),
+        "step_fwd_bwd": median_ms(whole_then_clear),
     }
     whole()  # gradients for the optimiser's step
     out["optimizer"] = median_ms(optimizer)
