@@ -7,7 +7,6 @@ fixtures, so that modules stay independent of each other's state.
 from __future__ import annotations
 
 import contextlib
-import time
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,6 +21,10 @@ THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window)
   window.requestAnimationFrame = (cb) => setTimeout(() => raf(cb), 200); })();"""
 
 
+#: The apps ``running_studio`` has started in this process and not stopped: what :func:`wait` waits on.
+_RUNNING: list = []
+
+
 @contextlib.contextmanager
 def running_studio(data_dir: Path) -> Iterator:
     """A :class:`StudioApp` with its embedded sim worker and trainer on a private bus, stopped afterwards."""
@@ -32,10 +35,12 @@ def running_studio(data_dir: Path) -> Iterator:
         data_dir=data_dir,
         bus_config=bus.BusConfig.hub([bus.loopback_endpoint(bus.free_loopback_port())]),
     )
+    _RUNNING.append(app)
     try:
         assert app.wait_for_workers(90), "the embedded workers did not join"
         yield app
     finally:
+        _RUNNING.remove(app)
         app.stop()
 
 
@@ -49,7 +54,7 @@ def open_page(studio, ready: str = "ready. Drag the gizmo", viewport=(1100, 720)
         pg = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
         pg.add_init_script(THROTTLE_RAF)
         pg.goto(studio.url)
-        pg.get_by_text(ready).first.wait_for(timeout=90_000)
+        pg.get_by_text(ready).filter(visible=True).first.wait_for(timeout=90_000)
         yield pg
         browser.close()
 
@@ -111,58 +116,42 @@ def next_pose(client, version: int, timeout: float = 10) -> int:
 
 
 def click(locator) -> None:
-    """Click without Playwright's stability wait: that waits on animation frames, which software WebGL on a
-    loaded machine delivers slowly; the elements clicked here are plain buttons and tabs."""
-    locator.click(force=True, timeout=60_000)
+    """Click as a person does: Playwright waits until the element is visible, still (not moving between two
+    drawn frames), enabled and the topmost element at its centre, then clicks it once. Forcing the click past
+    those checks is what lost clicks before: a forced click at a list option still sliding open, or at a tab the
+    panel had just moved, landed on whatever was there."""
+    locator.click(timeout=60_000)
 
 
-def click_until(page, locator, shows: str, attempts: int = 3) -> None:
-    """Click until the page shows ``shows``: a click that lands while a loaded machine is still building the page
-    can be lost (seen in full-suite runs, on tabs and on the Inspect tab's Open), and waiting longer on a click
-    that never arrived does not help. Fails if the text never appears."""
-    click_until_done(locator, lambda: page.get_by_text(shows).first.wait_for(timeout=30_000), attempts)
+def click_and_see(page, locator, shows: str) -> None:
+    """Click once, then wait until the page shows ``shows``."""
+    click(locator)
+    page.get_by_text(shows).filter(visible=True).first.wait_for(timeout=60_000)
 
 
-def click_until_done(locator, wait_done, attempts: int = 3) -> None:
-    """Click, then ``wait_done()`` (raises on timeout); click again while it times out, at most ``attempts`` times."""
-    from playwright.sync_api import TimeoutError as PlaywrightTimeout
-
-    for attempt in range(attempts):
-        click(locator)
-        try:
-            wait_done()
-            return
-        except (PlaywrightTimeout, AssertionError):
-            if attempt == attempts - 1:
-                raise
+def click_and_wait(locator, wait_done) -> None:
+    """Click once, then ``wait_done()`` (which raises if what the click does never happens)."""
+    click(locator)
+    wait_done()
 
 
-def choose(page, combobox: str, option, taken, what: str, state=None, timeout: float = 20, attempts: int = 3):
-    """Pick ``option`` (a name or pattern) in the dropdown ``combobox`` and wait until ``taken()``: open the list
-    (until the option shows), click it, and reopen and click again while the app has not taken it. A click on an
-    option of a list that is still opening can close the list without choosing (seen on a loaded machine: the app
-    never heard of the choice); an app that refuses the choice fails the last attempt with ``state()``."""
+def choose(page, combobox: str, option, taken, what: str, state=None, timeout: float = 20):
+    """Pick ``option`` (a name or pattern) in the dropdown ``combobox`` and wait until the app took it
+    (``taken()``); fails with ``state()``, what the app shows, if it does not."""
     exact = isinstance(option, str)
     locator = (
         page.get_by_role("option", name=option, exact=True)
         if exact
         else page.get_by_role("option", name=option)
     )
-    for attempt in range(attempts):
-        click_until_done(
-            page.get_by_role("combobox", name=combobox), lambda: locator.wait_for(timeout=10_000)
-        )
-        click(locator)
-        try:
-            return wait(taken, timeout, what, state)
-        except AssertionError:
-            if attempt == attempts - 1:
-                raise
+    click(page.get_by_role("combobox", name=combobox))
+    click(locator)
+    return wait(taken, timeout, what, state)
 
 
-def open_tab(page, name: str, shows: str, attempts: int = 3) -> None:
-    """Open a tab, re-clicking while its content does not show (``click_until``)."""
-    click_until(page, page.get_by_role("tab", name=name), shows, attempts)
+def open_tab(page, name: str, shows: str) -> None:
+    """Open a tab and wait until its content shows."""
+    click_and_see(page, page.get_by_role("tab", name=name), shows)
 
 
 def tab(studio):
@@ -171,13 +160,13 @@ def tab(studio):
 
 
 def wait(predicate, timeout: float, what: str, state=None):
-    """Poll ``predicate`` until it is truthy; on timeout, fail with ``state()`` (what the app showed) if given."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.1)
+    """Wait until ``predicate`` is truthy, checking it each time the running app changes what it shows
+    (``StudioApp.wait_until``); on timeout, fail with ``state()`` (what the app showed) if given."""
+    if not _RUNNING:
+        raise AssertionError("ui.wait waits on a running studio: start one with running_studio")
+    value = _RUNNING[-1].wait_until(predicate, timeout)
+    if value:
+        return value
     raise AssertionError(
         f"timed out after {timeout} s waiting for {what}" + (f"; {state()}" if state else "")
     )
@@ -191,10 +180,9 @@ def teleop_state(tab) -> str:
 
 
 def stop_and_save(page, tab) -> None:
-    """Click Stop & save until the panel took it (no longer recording, or saving), then wait for the store.
-    Re-clicking is safe: a Stop & save after the first one is a no-op."""
+    """Click Stop & save, wait until the panel took it (no longer recording, or saving), then for the store."""
     tp = tab.teleop
-    click_until_done(
+    click_and_wait(
         page.get_by_role("button", name="Stop & save"),
         lambda: wait(
             lambda: not tp.status.content.startswith("Recording"),

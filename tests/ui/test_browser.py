@@ -30,32 +30,11 @@ from studio.model.checkpoint_info import read_checkpoint_info
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import browser_support as ui
 from browser_support import THROTTLE_RAF, open_page, running_studio
+from tiny_network import TINY_BATCHED
 
 HELD_OUT = "pick_place/bar->blue"
 PUSH_HELD_OUT = "push/blue-backward"
 TRAIN_TASKS = ("pick_place/cube->red", "pick_place/cube->green")
-TINY = [
-    "model.image_size=[48, 64]",
-    "model.n_expert_frames=4",
-    "model.n_agent_frames=3",
-    "model.encoder_stages=2",
-    "model.state_channels=16",
-    "model.action_blocks=1",
-    "model.action_heads=2",
-    "model.action_attn_dim=16",
-    "model.action_mlp_dim=32",
-    "model.wm_blocks=1",
-    "model.wm_heads=2",
-    "model.wm_width=32",
-    "model.wm_mlp_dim=64",
-    "model.head_hidden=64",
-    "train.batch_size=4",
-    "train.num_workers=0",
-    "train.log_every=1",
-    "train.checkpoint_every=2",
-    "train.val_every=1000",
-    "train.pairs_per_expert=2",
-]
 
 # Tests that share the app are slow one by one (marked); the fast ones stay in `-m "not slow"` runs.
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(420)]
@@ -100,7 +79,7 @@ def test_serve_prints_its_url_and_waits_for_external_workers(tmp_path):
             page = browser.new_page(viewport={"width": 1100, "height": 720})
             page.add_init_script(THROTTLE_RAF)
             page.goto(url)
-            page.get_by_text("Waiting for a sim worker").first.wait_for(timeout=60_000)
+            page.get_by_text("Waiting for a sim worker").filter(visible=True).first.wait_for(timeout=60_000)
             assert page.locator("canvas").first.is_visible()
             ui.open_tab(page, "Workers", "No worker is connected")
             browser.close()
@@ -220,7 +199,7 @@ def test_teleop_records_and_saves_an_episode(studio, page, shots):
     before = {m.id for m in studio.store.episodes()}
     ui.click(page.get_by_role("button", name="Record"))
     ui.wait(lambda: tp._recording, 30, "recording to start")
-    page.get_by_text("● REC").first.wait_for(timeout=60_000)
+    page.get_by_text("● REC").filter(visible=True).first.wait_for(timeout=60_000)
     start = np.asarray(ui.wait(tp.client.latest_pose, 5, "a pose").ee_pos)
     # The gizmo's drag callback, as the browser reaches it: targets along a path, latest wins.
     goal = start + np.array([0.06, 0.04, -0.08])
@@ -239,7 +218,7 @@ def test_teleop_records_and_saves_an_episode(studio, page, shots):
     ui.shot(page, shots / "teleop-recording.png")
     assert ui.colours(shots / "teleop-recording.png") > 300, "the 3D view looks blank"
     ui.stop_and_save(page, tab)
-    page.get_by_text("Saved").first.wait_for(timeout=60_000)
+    page.get_by_text("Saved").filter(visible=True).first.wait_for(timeout=60_000)
     ui.shot(page, shots / "teleop-saved.png")
     (new,) = [m for m in studio.store.episodes() if m.id not in before]
     assert new.source == "teleop" and new.role == "expert" and new.embodiment == "sawyer"
@@ -261,31 +240,31 @@ def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, pa
     video = tmp_path / "demo.mp4"
     write_video(video, frames, fps=15)
     page.locator("input[type=file]").first.set_input_files(str(video))
-    page.get_by_text("The 10 frames the model will see").first.wait_for(timeout=60_000)
+    page.get_by_text("The 10 frames the model will see").filter(visible=True).first.wait_for(timeout=60_000)
     ui.shot(page, shots / "upload-filmstrip.png")
     ui.click(page.get_by_role("button", name="Save as expert demonstration"))
-    page.get_by_text("as an expert demonstration of").first.wait_for(timeout=60_000)
+    page.get_by_text("as an expert demonstration of").filter(visible=True).first.wait_for(timeout=60_000)
     (up,) = studio.store.episodes(source="upload")
     assert up.task == HELD_OUT and up.embodiment == "human" and up.role == "expert"
 
     corrupt = tmp_path / "broken.mp4"
     corrupt.write_bytes(b"\x00\x00\x00\x18ftypmp42" + os.urandom(4000))
     page.locator("input[type=file]").first.set_input_files(str(corrupt))
-    page.get_by_text("Video rejected").first.wait_for(timeout=60_000)
+    page.get_by_text("Video rejected").filter(visible=True).first.wait_for(timeout=60_000)
     ui.shot(page, shots / "upload-rejected.png")
     assert len(studio.store.episodes(source="upload")) == 1, "a rejected file must write nothing"
 
     ui.click(page.get_by_role("tab", name="Data"))
-    page.get_by_text("1 upload").first.wait_for(timeout=60_000)
+    page.get_by_text("1 upload").filter(visible=True).first.wait_for(timeout=60_000)
     tab.datasets.open(up.id)
-    page.get_by_text(up.id).first.wait_for(timeout=60_000)
+    page.get_by_text(up.id).filter(visible=True).first.wait_for(timeout=60_000)
     assert (
         tab.datasets.frames.shape[0] == up.num_frames and tab.mode == "teleop"
     )  # a video, nothing to replay
     (rec,) = studio.store.episodes(source="teleop")
     tab.datasets.open(rec.id)  # a simulated episode: replayed in the scene with its end-effector path
     tab.datasets.timeline.slider.value = rec.num_frames // 2
-    page.get_by_text(rec.id).first.wait_for(timeout=60_000)
+    page.get_by_text(rec.id).filter(visible=True).first.wait_for(timeout=60_000)
     assert tab.mode == "replay" and "path" in tab.view._overlays
     ui.shot(page, shots / "data.png")
 
@@ -297,11 +276,11 @@ def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
     ui.click(page.get_by_role("tab", name="Train"))
     for task, box in train._task_boxes.items():
         box.value = task in TRAIN_TASKS
-    train.overrides.value = "; ".join(TINY)
+    train.overrides.value = "; ".join(TINY_BATCHED)
     train.steps.value = 4
     ui.click(page.get_by_role("button", name="Start training"))
-    page.get_by_text("step 4/4").first.wait_for(timeout=240_000)
-    page.get_by_text("ended: finished").first.wait_for(timeout=60_000)
+    page.get_by_text("step 4/4").filter(visible=True).first.wait_for(timeout=240_000)
+    page.get_by_text("ended: finished").filter(visible=True).first.wait_for(timeout=60_000)
     short = train.job_id.removeprefix("train-")
     ui.wait(lambda: f"`{short}`" in train.runs_table.content, 30, "the run's row in the runs table")
     ui.drawn(page)
@@ -329,13 +308,13 @@ def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
     label = HELD_OUT + " (held-out)"
     assert label in im.task.options
     im.task.value = label
-    page.get_by_text("oracle — execution ceiling").first.wait_for(timeout=60_000)
+    page.get_by_text("oracle — execution ceiling").filter(visible=True).first.wait_for(timeout=60_000)
     ui.click(page.get_by_role("button", name="Make a scripted demonstration"))
-    page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
+    page.get_by_text("stored and selected").filter(visible=True).first.wait_for(timeout=90_000)
     assert "scripted" in im.demo.value
     im.seed.value = 2
     ui.click(page.get_by_role("button", name="Plan", exact=True))
-    page.get_by_text("Planned in").first.wait_for(timeout=90_000)
+    page.get_by_text("Planned in").filter(visible=True).first.wait_for(timeout=90_000)
     assert im.plan_wps.shape == (5, 4)
     overlay = tab.view._overlays["plan"]
     assert len(overlay) == 11, "a spline, 5 waypoint spheres and their labels"
@@ -349,7 +328,9 @@ def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
         "a waypoint",
     )
     ui.shot(page, shots / "imitate-executing.png")
-    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=120_000)
+    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).filter(visible=True).first.wait_for(
+        timeout=120_000
+    )
     ui.shot(page, shots / "imitate-outcome.png")
     result = ui.wait(lambda: im.rollout.result, 30, "the rollout's result")
     assert result["success"] is True, result  # the oracle's plan on a held-out task succeeds
@@ -414,7 +395,7 @@ def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     failed = studio.store.catalog.rollouts(success=False, checkpoint_id="fixture-run/best")
     first = ins.rollout.options[0]
     assert first.startswith(failed[0].id) and failed[0].failure_stage in first
-    ui.click_until(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
+    ui.click_and_see(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
     assert tab.mode == "replay"
     steps = ins.replay.num_steps
     ins.timeline.slider.value = steps // 2
@@ -471,7 +452,7 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
         lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}",
     )
     with contextlib.suppress(PlaywrightTimeout):  # the page may already show the end: a screenshot is no test
-        page.get_by_text(re.compile(r"episode \d of 2")).first.wait_for(timeout=20_000)
+        page.get_by_text(re.compile(r"episode \d of 2")).filter(visible=True).first.wait_for(timeout=20_000)
     ui.shot(page, shots / "compare-running.png")
     ui.wait(
         lambda: "finished:" in cmp.status.content,
@@ -479,7 +460,7 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
         "the comparison to finish",
         lambda: f"status {cmp.status.content!r}, job {job.state} {job.status and job.status.reason}",
     )
-    page.get_by_text("episodes in").first.wait_for(timeout=60_000)
+    page.get_by_text("episodes in").filter(visible=True).first.wait_for(timeout=60_000)
     assert len(cmp.rows) == 2 and all(r.difference == "A only" for r in cmp.rows), cmp.table.content
     assert (
         "**A 100.0%** (2 / 2, oracle) · **B 0.0%** (0 / 2, tiny-run/best) · A only 2 · B only 0"
@@ -493,7 +474,7 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     assert a == b and len(a) == 2, "A and B rolled out the identical episodes"
     ui.shot(page, shots / "compare-table.png", scroll_to="Per-seed table")
 
-    ui.click_until(page, page.get_by_role("button", name="Open side by side"), "Paths: A blue")
+    ui.click_and_see(page, page.get_by_role("button", name="Open side by side"), "Paths: A blue")
     assert tab.mode == "compare" and {"path", "path_b", "ee_a", "ee_b"} <= set(tab.view._overlays)
     sa, sb = cmp.sides
     steps = max(sa.steps, sb.steps)
@@ -507,7 +488,7 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     body = slice(20, None)  # below the labels drawn on the frames
     assert not np.array_equal(first[body, :half], moved[body, :half]), "A's camera frame follows the timeline"
     assert not np.array_equal(first[body, half:], moved[body, half:]), "B's camera frame follows the timeline"
-    page.get_by_text(f"Step {mid} of {steps - 1}.").first.wait_for(timeout=60_000)
+    page.get_by_text(f"Step {mid} of {steps - 1}.").filter(visible=True).first.wait_for(timeout=60_000)
     ui.shot(page, shots / "compare-playback.png", scroll_to="The scene shows")
     cmp.timeline.slider.value = steps - 1  # past the shorter rollout's end: it holds its last frame
     shorter = sa if sa.steps < sb.steps else sb
@@ -516,7 +497,7 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
     assert "holding its last frame" in held and held in cmp.step_info.content
     cmp.shows.value = "B"
     ui.wait(lambda: "The scene shows B." in cmp.step_info.content, 10, "the scene to show B")
-    page.get_by_text("The scene shows B.").first.wait_for(timeout=60_000)
+    page.get_by_text("The scene shows B.").filter(visible=True).first.wait_for(timeout=60_000)
     ui.shot(page, shots / "compare-end-b.png", scroll_to="The scene shows")
     # The same rows again from the catalog: the comparison's two stored evaluations, compared without running.
     ran = [r.to_dict() for r in cmp.rows]
@@ -530,7 +511,7 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
         "the comparison's evaluations",
     )
     cmp.rows = []
-    ui.click_until(page, page.get_by_role("button", name="Compare stored rollouts"), "2 shared episodes")
+    ui.click_and_see(page, page.get_by_role("button", name="Compare stored rollouts"), "2 shared episodes")
     assert [r.to_dict() for r in cmp.rows] == ran
 
 
@@ -538,7 +519,7 @@ def test_workers_panel_lists_the_embedded_workers(studio, page, shots):
     tab = ui.tab(studio)
     ui.click(page.get_by_role("tab", name="Workers"))
     for worker in studio.embedded.workers:
-        page.get_by_text(worker).first.wait_for(timeout=60_000)
+        page.get_by_text(worker).filter(visible=True).first.wait_for(timeout=60_000)
     text = tab.workers.describe()
     assert "| sim |" in text and "| train |" in text and "rollout" in text
     (sim,) = studio.hub.directory.workers("sim")
@@ -562,20 +543,22 @@ def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
         "its measured results are one fold away"
     )
     ui.click(page.get_by_role("button", name="Make a scripted demonstration"))
-    page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
+    page.get_by_text("stored and selected").filter(visible=True).first.wait_for(timeout=90_000)
     before = im.plan_job
     ui.click(page.get_by_role("button", name="Plan", exact=True))
     job = ui.wait(lambda: im.plan_job is not before and im.plan_job, 30, "a new plan job")
     assert job.spec["checkpoint"] == policy.path
     ui.wait(lambda: job.result is not None and im.latent_strip.visible, 120, "the decoded latent trajectory")
-    page.get_by_text("Planned in").first.wait_for(timeout=60_000)
+    page.get_by_text("Planned in").filter(visible=True).first.wait_for(timeout=60_000)
     assert job.result["latent_images"] == 5  # r_2 … r_6 of the shipped policy, decoded
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     ui.drawn(page)
     ui.shot(page, shots / "imitate-plan-shipped.png", scroll_to="Predicted latent trajectory")
     im.speed.value = "as fast as possible"
     ui.click(page.get_by_role("button", name="Execute", exact=True))
-    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
+    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).filter(visible=True).first.wait_for(
+        timeout=180_000
+    )
     result = ui.wait(lambda: im.rollout.result, 30, "the rollout's result")
     ui.shot(page, shots / "imitate-outcome-shipped.png")
     row = [r for r in studio.store.catalog.rollouts(task=HELD_OUT) if r.id == result["rollout_id"]]
@@ -622,7 +605,7 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
     assert studio.runs.active("push").id == push.id and train.active.value == push.label, (
         "push keeps its policy"
     )
-    page.get_by_text("it does not plan push tasks").first.wait_for(timeout=30_000)
+    page.get_by_text("it does not plan push tasks").filter(visible=True).first.wait_for(timeout=30_000)
     ui.shot(page, shots / "train-push-refused.png", scroll_to="it does not plan push tasks")
 
     # Imitate: the policy line follows the selected task's scene.
@@ -647,12 +630,12 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
         "its measured results one fold away",
         lambda: im.policy_details.content,
     )
-    page.get_by_text("default/push-cpu").first.wait_for(timeout=30_000)
+    page.get_by_text("default/push-cpu").filter(visible=True).first.wait_for(timeout=30_000)
     im.seed.value = 3
     before_demo = im.expert_job
     ui.click(page.get_by_role("button", name="Make a scripted demonstration"))
     ui.wait(lambda: im.expert_job is not before_demo and im.expert_job, 30, "the scripted demonstration job")
-    page.get_by_text("stored and selected").first.wait_for(timeout=90_000)
+    page.get_by_text("stored and selected").filter(visible=True).first.wait_for(timeout=90_000)
     demo = studio.store.get(im.demo_id())
     assert (demo.task, demo.embodiment, demo.source) == (PUSH_HELD_OUT, "sawyer", "scripted")
     before = im.plan_job
@@ -665,7 +648,7 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
         "the decoded latent trajectory",
         lambda: im.status.content,
     )
-    page.get_by_text("Planned in").first.wait_for(timeout=60_000)
+    page.get_by_text("Planned in").filter(visible=True).first.wait_for(timeout=60_000)
     assert job.result["latent_images"] > 0 and im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     assert im.plan_wps[2, 1] - im.plan_wps[1, 1] < -0.1, f"a backward push: {im.plan_wps}"
     ui.drawn(page)
@@ -673,7 +656,9 @@ def test_push_is_imitated_with_the_shipped_push_policy(studio, page, shots):
     ui.shot(page, shots / "imitate-push-latents.png", scroll_to="Predicted latent trajectory")
     im.speed.value = "as fast as possible"
     ui.click(page.get_by_role("button", name="Execute", exact=True))
-    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
+    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).filter(visible=True).first.wait_for(
+        timeout=180_000
+    )
     result = ui.wait(lambda: im.rollout.result, 30, "the rollout's result")
     assert im.rollout.spec["checkpoint"] == push.path and im.rollout.spec["checkpoint_id"] == push.id
     ui.drawn(page)
@@ -736,12 +721,12 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     before = {m.id for m in studio.store.episodes(source="upload")}
     page.locator("input[type=file]").first.set_input_files(str(video))
     ui.wait(lambda: upload.pending is not None, 90, "the upload to be decoded", lambda: upload.status.content)
-    page.get_by_text("Check the task above").first.wait_for(timeout=60_000)
+    page.get_by_text("Check the task above").filter(visible=True).first.wait_for(timeout=60_000)
     assert "hand-push.mp4" in upload.status.content and upload.strip.visible
     ui.drawn(page)
     ui.shot(page, shots / "upload-hand-filmstrip.png", scroll_to="The 10 frames the model will see")
     ui.click(page.get_by_role("button", name="Save as expert demonstration"))
-    page.get_by_text("as an expert demonstration of").first.wait_for(timeout=60_000)
+    page.get_by_text("as an expert demonstration of").filter(visible=True).first.wait_for(timeout=60_000)
     (up,) = [m for m in studio.store.episodes(source="upload") if m.id not in before]
     assert (up.task, up.embodiment, up.role, up.source) == (PUSH_HELD_OUT, "human", "expert", "upload")
     assert up.extra["source_size"] == [180, 240] and up.extra["original_name"] == "hand-push.mp4"
@@ -770,7 +755,7 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
         "the policy line of a human demonstration",
         lambda: im.policy.content,
     )
-    page.get_by_text("default/push-human-demos").first.wait_for(timeout=30_000)
+    page.get_by_text("default/push-human-demos").filter(visible=True).first.wait_for(timeout=30_000)
     im.seed.value = 3
     before_plan = im.plan_job
     ui.click(page.get_by_role("button", name="Plan", exact=True))
@@ -778,7 +763,7 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
     assert plan.spec["expert_episode_id"] == up.id and plan.spec["checkpoint"] == push.path
     assert plan.spec["task"] == PUSH_HELD_OUT
     ui.wait(lambda: plan.terminal and plan.result is not None, 120, "the plan", lambda: im.status.content)
-    page.get_by_text("Planned in").first.wait_for(timeout=60_000)
+    page.get_by_text("Planned in").filter(visible=True).first.wait_for(timeout=60_000)
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     ui.drawn(page)
     ui.shot(page, shots / "imitate-upload-plan.png", scroll_to="Policy for")
@@ -791,7 +776,9 @@ def test_a_filmed_hand_demonstration_uploaded_in_the_browser_is_imitated_by_the_
         "the rollout of the upload",
     )
     assert rollout.spec["checkpoint_id"] == push.id
-    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
+    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).filter(visible=True).first.wait_for(
+        timeout=180_000
+    )
     result = ui.wait(lambda: rollout.result, 30, "the rollout's result")
     ui.drawn(page)
     ui.shot(page, shots / "imitate-upload-outcome.png", scroll_to="re-plan(s); rollout")
@@ -886,7 +873,7 @@ def test_teleop_on_a_meta_world_scene_records_a_demonstration(studio, page, shot
     assert job.spec["expert_episode_id"] == new.id and job.spec["robot"] == "sawyer"
     assert job.spec["checkpoint"] == mw.path
     ui.wait(lambda: job.result is not None, 120, "the plan on the Meta-World scene")
-    page.get_by_text("Planned in").first.wait_for(timeout=60_000)
+    page.get_by_text("Planned in").filter(visible=True).first.wait_for(timeout=60_000)
     assert im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     # The shipped Meta-World policy plans with gated guidance: its plan from the scene alone is drawn in grey and
     # the status says whether this demonstration was guided, with its gain against the gate.
@@ -917,20 +904,22 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     shown = (
         ins.replay
     )  # an earlier test may have opened it: wait for this Open's replay (it resets the timeline)
-    ui.click_until_done(
+    ui.click_and_wait(
         page.get_by_role("button", name="Open", exact=True).first,
         lambda: ui.wait(lambda: ins.replay is not shown and ins.record.id == failed.id, 90, "the replay"),
     )
     # A click repeated because the first open was slow opens the rollout again later, resetting the timeline to
     # step 0: wait until no open is queued before moving it.
     ui.wait(lambda: "opening the rollout" not in tab.actions, 120, "every queued Open", lambda: tab.actions)
-    page.get_by_text("No episode was forked from this rollout yet").first.wait_for(timeout=30_000)
+    page.get_by_text("No episode was forked from this rollout yet").filter(visible=True).first.wait_for(
+        timeout=30_000
+    )
     k = 40  # the arm is on its way to the misaimed grasp
     ins.timeline.slider.value = k
     ui.wait(lambda: f"Step {k} of" in ins.plan_info.content, 30, "the timeline to move")
     before = {m.id for m in studio.store.episodes()}
     assert "opening the rollout" not in tab.actions and f"Step {k} of" in ins.plan_info.content
-    ui.click_until(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
+    ui.click_and_see(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
     ui.wait(
         lambda: tp._recording and tab.mode == "teleop" and tp.info.robot == "panda",
         60,
@@ -1027,7 +1016,7 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     ui.wait(
         lambda: tp.success.value, 10, "the task's check to see the bar placed", lambda: ui.teleop_state(tab)
     )
-    ui.click_until_done(
+    ui.click_and_wait(
         page.get_by_role("button", name="Stop & save the fork"),
         lambda: ui.wait(
             lambda: tp.status.content.startswith("Saved"),
@@ -1073,17 +1062,21 @@ def test_a_rollout_whose_scene_no_longer_loads_says_so(studio, page, shots, monk
     with monkeypatch.context() as m:  # the scene file is gone: replaying needs it
         m.setattr(scenes, "build_model", gone)
         ui.click(page.get_by_role("button", name="Open", exact=True).first)
-        page.get_by_text("cannot be replayed: its scene does not load here").first.wait_for(timeout=60_000)
+        page.get_by_text("cannot be replayed: its scene does not load here").filter(
+            visible=True
+        ).first.wait_for(timeout=60_000)
     ui.shot(page, shots / "inspect-scene-gone.png")
     # The scene loads again, but its model changed since the rollout: the fork is refused with the reason.
-    ui.click_until(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
+    ui.click_and_see(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
     path = Path(failed.path) / STATES_FILE
     kept = path.read_bytes()
     try:
         with np.load(path) as data:
             np.savez_compressed(path, states=data["states"][:, :-2])
         ui.click(page.get_by_role("button", name="Fork at this step"))
-        page.get_by_text("the scene changed since the episode was recorded").first.wait_for(timeout=60_000)
+        page.get_by_text("the scene changed since the episode was recorded").filter(
+            visible=True
+        ).first.wait_for(timeout=60_000)
     finally:
         path.write_bytes(kept)
     assert not tp._recording and studio.drafts.drafts() == [], "a refused fork leaves nothing behind"

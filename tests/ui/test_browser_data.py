@@ -77,7 +77,7 @@ def test_collect_scripted_episodes_from_the_data_tab(studio, page, shots):
     assert page.get_by_role("checkbox", name="bar->blue (held-out)").is_visible()
     start = page.get_by_role("button", name="Start collecting")
     # Nothing ticked: refused with the field named, nothing queued.
-    ui.click_until(page, start, "tasks: tick at least one task")
+    ui.click_and_see(page, start, "tasks: tick at least one task")
     assert not _collect_jobs(studio)
 
     box = page.get_by_role("checkbox", name="cube->red", exact=True)
@@ -96,16 +96,16 @@ def test_collect_scripted_episodes_from_the_data_tab(studio, page, shots):
     clicks = []
     on_start = data._on_start
     data._on_start = lambda: (clicks.append(1), on_start())
-    start.dblclick(force=True, timeout=60_000)
+    start.dblclick(timeout=60_000)
     ui.wait(lambda: _collect_jobs(studio), 30, "the collect job to be queued", lambda: _state(data))
-    page.get_by_text("2 of 2 episodes stored (2 new)").first.wait_for(timeout=120_000)
+    page.get_by_text("2 of 2 episodes stored (2 new)").filter(visible=True).first.wait_for(timeout=120_000)
     assert len(_collect_jobs(studio)) == 1, (
         f"a double-click ({len(clicks)} clicks heard) queued two collections"
     )
     data._on_start = on_start
     (job,) = _collect_jobs(studio)
     assert job.state == "succeeded" and job.spec["tasks"] == [TASK] and job.spec["episodes"] == 2
-    page.get_by_text("2 scripted").first.wait_for(timeout=30_000)  # the counts table
+    page.get_by_text("2 scripted").filter(visible=True).first.wait_for(timeout=30_000)  # the counts table
     assert "| pick_place/cube->red | 2 scripted | — |" in data.table.content
     assert data.c_progress.value == 100.0 and data.c_progress.visible
     metas = studio.store.episodes()
@@ -117,7 +117,7 @@ def test_collect_scripted_episodes_from_the_data_tab(studio, page, shots):
     # A longer run of the same seed resumes after the two, shows its progress while the table grows, and is
     # cancelled mid-way from the page.
     _set_episodes(page, data, 120)
-    ui.click_until_done(start, lambda: ui.wait(lambda: len(_collect_jobs(studio)) == 2, 20, "a second job"))
+    ui.click_and_wait(start, lambda: ui.wait(lambda: len(_collect_jobs(studio)) == 2, 20, "a second job"))
     running = re.compile(r"running\W+episode (\d+) of 120")
     ui.wait(
         lambda: (m := running.search(data.c_status.content)) and int(m.group(1)) >= 5,
@@ -125,12 +125,12 @@ def test_collect_scripted_episodes_from_the_data_tab(studio, page, shots):
         "episode 5 of 120",
         lambda: _state(data),
     )
-    page.get_by_text(re.compile(r"episode \d+ of 120")).first.wait_for(timeout=30_000)
+    page.get_by_text(re.compile(r"episode \d+ of 120")).filter(visible=True).first.wait_for(timeout=30_000)
     assert page.get_by_role("button", name="Start collecting").is_disabled(), "no second run while one runs"
     ui.wait(lambda: _counted(data) > 2, 30, "the counts table to grow", lambda: _state(data))
     assert 0 < data.c_progress.value < 100
     ui.shot(page, shots / "data-collecting.png", scroll_to="Cancel collecting")
-    ui.click_until(page, page.get_by_role("button", name="Cancel collecting"), "cancelled")
+    ui.click_and_see(page, page.get_by_role("button", name="Cancel collecting"), "cancelled")
     second = _collect_jobs(studio)[-1]
     ui.wait(lambda: "kept" in data.c_status.content, 30, "the cancelled run's counts", lambda: _state(data))
     stored = studio.store.episodes()
@@ -140,7 +140,7 @@ def test_collect_scripted_episodes_from_the_data_tab(studio, page, shots):
         data.c_status.content
     )
     assert {m.collect_index for m in stored} == set(range(len(stored)))  # the slots in order, none half-made
-    page.get_by_text(f"{len(stored)} scripted").first.wait_for(timeout=30_000)
+    page.get_by_text(f"{len(stored)} scripted").filter(visible=True).first.wait_for(timeout=30_000)
     assert not page.get_by_role("button", name="Start collecting").is_disabled()
     ui.shot(page, shots / "data-cancelled.png", scroll_to="Cancel collecting")
     ui.shot(page, shots / "data-counts.png", scroll_to=f"{len(stored)} episodes: ")

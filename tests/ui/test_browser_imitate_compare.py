@@ -118,20 +118,20 @@ def visible(page, text: str):
 
 def plan(page, im):
     before = im.plan_job
-    ui.click_until_done(
+    ui.click_and_wait(
         page.get_by_role("button", name="Plan", exact=True),
         lambda: ui.wait(lambda: im.plan_job is not before, 30, "a new plan job"),
     )
     job = im.plan_job
     ui.wait(lambda: job.terminal and job.result is not None, 120, "the plan", lambda: im.status.content)
-    page.get_by_text("Planned in").first.wait_for(timeout=60_000)
+    page.get_by_text("Planned in").filter(visible=True).first.wait_for(timeout=60_000)
     return job
 
 
 def execute(page, im) -> None:
     """Click Execute (again if the click was lost) until a new rollout is attached."""
     before = im.rollout
-    ui.click_until_done(
+    ui.click_and_wait(
         page.get_by_role("button", name="Execute", exact=True),
         lambda: ui.wait(lambda: im.rollout is not before, 30, "a new rollout"),
     )
@@ -188,10 +188,14 @@ def test_imitate_shows_the_frames_of_the_demonstration_that_runs(studio, page, s
         60,
         "the page to draw the upload's frames",
     )
-    page.get_by_text(f"Expert frames the model sees — {blob_id}").first.wait_for(timeout=60_000)
+    page.get_by_text(f"Expert frames the model sees — {blob_id}").filter(visible=True).first.wait_for(
+        timeout=60_000
+    )
     assert scripted_id not in im.expert_strip.label
     assert not im.latent_strip.visible, "the scripted plan's latent images are not the upload's"
-    page.get_by_text("Plan** again").or_(page.get_by_text("Plan again")).first.wait_for(timeout=30_000)
+    page.get_by_text("Plan** again").or_(page.get_by_text("Plan again")).filter(visible=True).first.wait_for(
+        timeout=30_000
+    )
     ui.shot(page, shots / "stale-2-upload-chosen.png", scroll_to="Expert frames the model sees")
 
     ui.choose(
@@ -201,9 +205,13 @@ def test_imitate_shows_the_frames_of_the_demonstration_that_runs(studio, page, s
     rollout = im.rollout
     assert rollout.spec["expert_episode_id"] == blob_id, "Execute runs the chosen demonstration"
     assert share_near(element_pixels(expert_image(page)), BACKGROUND) > 0.3, "the frames shown are what runs"
-    page.get_by_text(f"Expert frames the model sees — {blob_id}").first.wait_for(timeout=30_000)
+    page.get_by_text(f"Expert frames the model sees — {blob_id}").filter(visible=True).first.wait_for(
+        timeout=30_000
+    )
     ui.shot(page, shots / "stale-3-executing-upload.png", scroll_to="Expert frames the model sees")
-    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).first.wait_for(timeout=180_000)
+    page.get_by_text("✔ Success").or_(page.get_by_text("✘ Failed at")).filter(visible=True).first.wait_for(
+        timeout=180_000
+    )
     assert share_near(element_pixels(expert_image(page)), BACKGROUND) > 0.3
 
 
@@ -256,7 +264,7 @@ def test_a_meaningless_demonstration_is_flagged_in_imitate_and_in_inspect(studio
     ui.choose(
         page, "Rollout", option, lambda: ins.rollout.value == option, "the rollout", lambda: ins.rollout.value
     )
-    ui.click_until_done(
+    ui.click_and_wait(
         page.get_by_role("button", name="Open", exact=True).first,
         lambda: visible(page, "far from what the policy learnt").wait_for(timeout=30_000),
     )
@@ -280,15 +288,15 @@ def test_imitate_policy_line_is_short_and_images_enlarge(studio, page, shots):
     line.wait_for(timeout=30_000)
     assert policy.summary[:40] not in line.inner_text()
     assert not page.get_by_text(policy.summary[:40]).first.is_visible()
-    ui.click_until(page, page.get_by_text("About this policy"), policy.summary[:40])
+    ui.click_and_see(page, page.get_by_text("About this policy"), policy.summary[:40])
     ui.drawn(page, 3)
     ui.shot(page, shots / "enlarge-1-policy-fold.png", scroll_to="About this policy")
 
     plan(page, im)
     modal = page.locator(".mantine-Modal-content")
-    ui.click_until_done(
+    ui.click_and_wait(
         page.get_by_role("button", name="Enlarge"),
-        lambda: modal.get_by_text("Imitate — enlarged").first.wait_for(timeout=30_000),
+        lambda: modal.get_by_text("Imitate — enlarged").filter(visible=True).first.wait_for(timeout=30_000),
     )
     images = modal.locator("img")
     ui.wait(lambda: images.count() == 3, 30, "three enlarged images")
@@ -322,7 +330,7 @@ def test_compare_starts_from_two_policies_of_the_scene_and_makes_missing_demonst
     page.keyboard.press("Escape")
     assert not studio.store.episodes(task=OTHER_HELD_OUT, role="expert")
     cmp.episodes.value = 1
-    ui.click_until(
+    ui.click_and_see(
         page, page.get_by_role("button", name="Start", exact=True), "making a scripted one of each"
     )
     assert OTHER_HELD_OUT in cmp.status.content and HELD_OUT not in cmp.status.content.split("stored:")[0]
@@ -339,14 +347,16 @@ def test_compare_starts_from_two_policies_of_the_scene_and_makes_missing_demonst
     made = studio.store.episodes(task=OTHER_HELD_OUT, role="expert", source="scripted")
     assert len(made) == 1 and len(cmp.rows) == 2
     assert {r.task for r in cmp.rows} == {HELD_OUT, OTHER_HELD_OUT}
-    page.get_by_text("episodes in").first.wait_for(timeout=60_000)
+    page.get_by_text("episodes in").filter(visible=True).first.wait_for(timeout=60_000)
     ui.shot(page, shots / "compare-2-finished.png", scroll_to="Per-seed table")
 
-    ui.click_until(page, page.get_by_role("button", name="Open side by side"), "Paths: A blue")
+    ui.click_and_see(page, page.get_by_role("button", name="Open side by side"), "Paths: A blue")
     modal = page.locator(".mantine-Modal-content")
-    ui.click_until_done(
+    ui.click_and_wait(
         page.get_by_role("button", name="Enlarge"),
-        lambda: modal.get_by_text("Compare — camera views").first.wait_for(timeout=30_000),
+        lambda: (
+            modal.get_by_text("Compare — camera views").filter(visible=True).first.wait_for(timeout=30_000)
+        ),
     )
     big = modal.locator("img").first
     ui.wait(lambda: (big.bounding_box() or {}).get("width", 0) > 700, 30, "a large side-by-side view")

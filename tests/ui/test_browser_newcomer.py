@@ -198,7 +198,7 @@ def new_page(browser, studio, viewport=(1100, 720), opened: list | None = None):
     pg.bring_to_front()  # the tab a person looks at (a background tab's timers are throttled)
     pg.add_init_script(THROTTLE_RAF)
     pg.goto(studio.url)
-    pg.get_by_text("ready. Drag the gizmo").first.wait_for(timeout=120_000)
+    pg.get_by_text("ready. Drag the gizmo").filter(visible=True).first.wait_for(timeout=120_000)
     (client_id,) = set(studio.tabs) - before
     return pg, studio.tabs[client_id]
 
@@ -320,7 +320,7 @@ def test_a_fork_mid_carry_keeps_the_object_in_the_gripper(studio, browser, rollo
     ui.open_tab(page, "Inspect", "Every rollout")
     label = next(o for o in ins.rollout.options if o.startswith(failed.id))
     ui.choose(page, "Rollout", label, lambda: ins.rollout.value == label, "the carrying rollout chosen")
-    ui.click_until_done(
+    ui.click_and_wait(
         page.get_by_role("button", name="Open", exact=True).first,
         lambda: ui.wait(lambda: ins.record is not None and ins.record.id == failed.id, 90, "the replay"),
     )
@@ -328,7 +328,7 @@ def test_a_fork_mid_carry_keeps_the_object_in_the_gripper(studio, browser, rollo
     ins.timeline.slider.value = k
     ui.wait(lambda: f"Step {k} of" in ins.plan_info.content, 30, "the timeline to move")
     before = {m.id for m in studio.store.episodes()}
-    ui.click_until(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
+    ui.click_and_see(page, page.get_by_role("button", name="Fork at this step"), "Recording the fork")
     ui.wait(
         lambda: tp._recording and tab.mode == "teleop" and not tab.actions,
         60,
@@ -369,7 +369,7 @@ def test_a_fork_mid_carry_keeps_the_object_in_the_gripper(studio, browser, rollo
     assert cube[2] > cube0[2] + 0.02 and np.linalg.norm(cube - np.asarray(now.ee_pos)) < 0.05, (
         f"the cube fell: at {np.round(cube, 3)}, gripper at {np.round(now.ee_pos, 3)} (fork at {np.round(cube0, 3)})"
     )
-    ui.click_until_done(
+    ui.click_and_wait(
         page.get_by_role("button", name="Stop & save the fork"),
         lambda: ui.wait(
             lambda: tp.status.content.startswith("Saved"),
@@ -404,10 +404,10 @@ def test_upload_errors_are_one_sentence_and_error_notifications_close_without_pi
         notes = tmp_path / f"notes{i}.mp4"
         notes.write_text("meeting notes, definitely not a video\n" * 50)
         page.locator("input[type=file]").first.set_input_files(str(notes))
-        page.get_by_text(f"notes{i}.mp4 is not a video file the studio can read").first.wait_for(
-            timeout=60_000
-        )
-    page.get_by_text("Video rejected", exact=True).first.wait_for(timeout=30_000)
+        page.get_by_text(f"notes{i}.mp4 is not a video file the studio can read").filter(
+            visible=True
+        ).first.wait_for(timeout=60_000)
+    page.get_by_text("Video rejected", exact=True).filter(visible=True).first.wait_for(timeout=30_000)
     body = page.locator("body").inner_text()
     assert "Errno" not in body and "InvalidDataError" not in body, "the decoder's exception reached the page"
     # A replaced notification leaves with a short animation (slow here: animation frames are throttled).
@@ -416,7 +416,7 @@ def test_upload_errors_are_one_sentence_and_error_notifications_close_without_pi
     )
     tab.notify("Planning failed", "the plan job failed on the sim worker.", error=True)
     tab.notify("No rollout", "Choose a rollout to open.", error=True)
-    page.get_by_text("No rollout", exact=True).first.wait_for(timeout=30_000)
+    page.get_by_text("No rollout", exact=True).filter(visible=True).first.wait_for(timeout=30_000)
     titles = ("Video rejected", "Planning failed", "No rollout")
     shown = lambda: {t: _visible(page, t) for t in titles}  # noqa: E731
     ui.wait(lambda: sum(shown().values()) <= 2, 10, "at most two error notifications", shown)
@@ -443,8 +443,8 @@ def test_an_upload_says_its_frame_rate_was_lowered(studio, browser, shots, opene
     page, tab = new_page(browser, studio, opened=opened)
     ui.open_tab(page, "Upload", "Upload a video of")
     page.locator("input[type=file]").first.set_input_files(str(video))
-    page.get_by_text("The 10 frames the model will see").first.wait_for(timeout=60_000)
-    page.get_by_text("resampled from the video's 20 fps").first.wait_for(timeout=30_000)
+    page.get_by_text("The 10 frames the model will see").filter(visible=True).first.wait_for(timeout=60_000)
+    page.get_by_text("resampled from the video's 20 fps").filter(visible=True).first.wait_for(timeout=30_000)
     assert re.search(r"\d+ frames at 10 fps \(resampled from the video's 20 fps", tab.upload.status.content)
     ui.shot(page, shots / "upload-resampled.png", scroll_to="resampled from")
     ui.click(page.get_by_role("button", name="Discard upload"))

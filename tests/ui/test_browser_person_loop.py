@@ -58,7 +58,9 @@ def _collect(page, tab, robot: str, episodes: int) -> None:
         180,
         f"{episodes} scripted {robot} episodes",
     )
-    page.get_by_text(f"{episodes} of {episodes} episodes stored").first.wait_for(timeout=60_000)
+    page.get_by_text(f"{episodes} of {episodes} episodes stored").filter(visible=True).first.wait_for(
+        timeout=60_000
+    )
 
 
 def test_collect_record_fine_tune_activate_and_plan(studio, page, shots):
@@ -82,15 +84,15 @@ def test_collect_record_fine_tune_activate_and_plan(studio, page, shots):
     # The active policy reads at a glance; what was measured of it is one fold away.
     assert page.get_by_role("combobox", name="Active policy").input_value() == "shipped policy pick-place-cpu"
     ui.click(page.get_by_text("About the active policy"))
-    page.get_by_text(shipped.summary[:60]).first.wait_for(timeout=30_000)
-    page.get_by_text(re.compile(r"demonstrations? × \d+ agent episodes? of cube->red")).first.wait_for(
-        timeout=60_000
-    )
+    page.get_by_text(shipped.summary[:60]).filter(visible=True).first.wait_for(timeout=30_000)
+    page.get_by_text(re.compile(r"demonstrations? × \d+ agent episodes? of cube->red")).filter(
+        visible=True
+    ).first.wait_for(timeout=60_000)
     ui.click(page.get_by_role("button", name="Fine-tune the active policy on my episodes"))
-    page.get_by_text("ended: finished").first.wait_for(timeout=600_000)
+    page.get_by_text("ended: finished").filter(visible=True).first.wait_for(timeout=600_000)
     ui.shot(page, shots / "loop-fine-tuned.png")
     ui.click(page.get_by_role("button", name="Make it the active policy"))
-    page.get_by_text("is the active policy of pick_place").first.wait_for(timeout=60_000)
+    page.get_by_text("is the active policy of pick_place").filter(visible=True).first.wait_for(timeout=60_000)
     active = studio.runs.active("pick_place")
     assert active is not None and active.id != shipped.id and active.run_id is not None
     # 4. Imitate: plan the task with the fine-tuned policy, from the demonstration recorded by clicking.
@@ -107,6 +109,6 @@ def test_collect_record_fine_tune_activate_and_plan(studio, page, shots):
     ui.click(page.get_by_role("button", name="Plan", exact=True))
     job = ui.wait(lambda: im.plan_job is not before_job and im.plan_job, 30, "a new plan job")
     assert job.spec["checkpoint"] == active.path
-    page.get_by_text("Planned in").first.wait_for(timeout=120_000)
+    page.get_by_text("Planned in").filter(visible=True).first.wait_for(timeout=120_000)
     assert im.plan_wps is not None and im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
     ui.shot(page, shots / "loop-planned.png")

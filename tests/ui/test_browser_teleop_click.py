@@ -177,7 +177,7 @@ def test_teleop_marks_a_held_out_task(studio, page, shots):
         "the held-out task",
         lambda: ui.teleop_state(tab),
     )
-    page.get_by_text("is held out").first.wait_for(timeout=20_000)
+    page.get_by_text("is held out").filter(visible=True).first.wait_for(timeout=20_000)
     ui.shot(page, shots / "teleop-held-out.png", scroll_to="is held out")
 
 

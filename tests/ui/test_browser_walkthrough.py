@@ -96,7 +96,7 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
 
             def teleop() -> None:
                 tp = tab.teleop
-                ui.click_until_done(
+                ui.click_and_wait(
                     page.get_by_role("button", name="Record"),
                     lambda: ui.wait(lambda: tp._recording, 60, "the recording", lambda: ui.teleop_state(tab)),
                 )
@@ -116,7 +116,7 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
 
             def data() -> None:
                 ui.open_tab(page, "Data", "1 episode")
-                ui.click_until_done(
+                ui.click_and_wait(
                     page.get_by_role("button", name="Open", exact=True),
                     lambda: ui.wait(lambda: tab.mode == "replay", 60, "the episode replayed"),
                 )
@@ -125,9 +125,9 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
                 # With the defaults there is one unsuccessful demonstration and no agent episode: nothing to
                 # train on. Train says what to record, and Start waits for it instead of failing.
                 ui.open_tab(page, "Train", "is the paper's model")
-                page.get_by_text("Start needs at least one training pair: record").first.wait_for(
-                    timeout=60_000
-                )
+                page.get_by_text("Start needs at least one training pair: record").filter(
+                    visible=True
+                ).first.wait_for(timeout=60_000)
                 start = page.get_by_role("button", name="Start training")
                 ui.wait(start.is_disabled, 30, "Start to wait for training pairs")
 
@@ -160,7 +160,7 @@ def test_a_newcomer_goes_through_every_tab_with_the_defaults(tmp_path, monkeypat
                 ins = tab.inspector
                 ui.open_tab(page, "Inspect", "Every rollout")
                 ui.wait(lambda: not ins.rollout.value.startswith("("), 30, "a rollout listed")
-                ui.click_until_done(
+                ui.click_and_wait(
                     page.get_by_role("button", name="Open", exact=True),
                     lambda: ui.wait(lambda: ins.record is not None, 90, "the rollout replayed"),
                 )
