@@ -9,8 +9,9 @@ lock never lets the Python handler run) would stall the whole run silently: pypr
 faulthandler watchdog (in C) past the longest per-test timeout, which prints every thread's stack and ends
 the run, so the log says where it stuck.
 
-``./run test`` runs the suite in two processes, one after the other: everything but the browser tests, then the
-browser tests (``STUDIO_TEST_PART=rest|browser`` selects the part here). A full run leaves, after 800 tests,
+``./run test`` runs the suite in two runs, one after the other, each spreading its test files over two worker
+processes: everything but the browser tests, then the browser tests (``STUDIO_TEST_PART=rest|browser`` selects
+the part here). A full run leaves, after 800 tests,
 a process whose state the browser tests should not inherit: they start their app, workers and Chromium in a
 process of their own, as a person's studio would.
 """

@@ -1,7 +1,7 @@
 """What the browser tests share: launching Debian's Chromium, waiting on the app, clicking, screenshots.
 
-Each browser test module starts its own app (``running_studio``) and page (``open_page``) as module-scoped
-fixtures, so that modules stay independent of each other's state.
+Each browser test module starts its own app (``running_studio``) and page (``open_page``) through the module-scoped
+fixtures of ``conftest.py``, so that modules stay independent of each other's state.
 """
 
 from __future__ import annotations

@@ -15,29 +15,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import browser_support as ui
-from browser_support import open_page, running_studio
 
 TASK = "pick_place/cube->red"
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(420)]
-
-
-@pytest.fixture(scope="module")
-def shots(tmp_path_factory):
-    d = tmp_path_factory.mktemp("screenshots")
-    yield d
-    print(f"\nscreenshots: {d}")
-
-
-@pytest.fixture(scope="module")
-def studio(tmp_path_factory):
-    with running_studio(tmp_path_factory.mktemp("studio") / "data") as app:
-        yield app
-
-
-@pytest.fixture(scope="module")
-def page(studio):
-    with open_page(studio) as pg:
-        yield pg
 
 
 def _collect_jobs(studio) -> list:

@@ -46,13 +46,6 @@ def blob_video(path: Path, seconds: float = 3.0, fps: float = 24.0) -> Path:
 
 
 @pytest.fixture(scope="module")
-def shots(tmp_path_factory):
-    d = tmp_path_factory.mktemp("screenshots")
-    yield d
-    print(f"\nscreenshots: {d}")
-
-
-@pytest.fixture(scope="module")
 def data_dir(tmp_path_factory):
     """A scripted Sawyer demonstration of the held-out task (by the recorder the ``expert`` job runs) and the blob
     video uploaded as a demonstration of the same task."""
@@ -72,18 +65,6 @@ def data_dir(tmp_path_factory):
         video = blob_video(tmp_path_factory.mktemp("videos") / "blob.mp4")
         import_video(store, video, HELD_OUT)
     return root
-
-
-@pytest.fixture(scope="module")
-def studio(data_dir):
-    with ui.running_studio(data_dir) as app:
-        yield app
-
-
-@pytest.fixture(scope="module")
-def page(studio):
-    with ui.open_page(studio) as pg:
-        yield pg
 
 
 def demos(studio) -> tuple[str, str]:

@@ -123,19 +123,6 @@ def image_difference(a: Path, b: Path, box=(0, 200, 690, 720)) -> float:
 
 
 @pytest.fixture(scope="module")
-def shots(tmp_path_factory):
-    d = tmp_path_factory.mktemp("screenshots")
-    yield d
-    print(f"\nscreenshots: {d}")
-
-
-@pytest.fixture(scope="module")
-def studio(tmp_path_factory):
-    with ui.running_studio(tmp_path_factory.mktemp("studio") / "data") as app:
-        yield app
-
-
-@pytest.fixture(scope="module")
 def rollouts(studio):
     """Rollouts stored on demand (once per module): ``carry`` grasps the cube, carries it lifted 18 cm to the
     side of its zone and lets it go there (a failure at the place stage); ``success`` is the oracle's."""

@@ -20,25 +20,6 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.timeout(900)]
 TASK = "pick_place/cube->red"
 
 
-@pytest.fixture(scope="module")
-def shots(tmp_path_factory):
-    d = tmp_path_factory.mktemp("screenshots")
-    yield d
-    print(f"\nscreenshots: {d}")
-
-
-@pytest.fixture(scope="module")
-def studio(tmp_path_factory):
-    with ui.running_studio(tmp_path_factory.mktemp("studio") / "data") as app:
-        yield app
-
-
-@pytest.fixture(scope="module")
-def page(studio):
-    with ui.open_page(studio) as pg:
-        yield pg
-
-
 def _collect(page, tab, robot: str, episodes: int) -> None:
     """Data tab: one task, ``episodes`` scripted episodes by ``robot`` (its own role), Start collecting."""
     data = tab.datasets

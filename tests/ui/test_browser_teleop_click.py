@@ -30,13 +30,6 @@ MAX_ACTIONS = 12
 MAX_SIM_SECONDS = 60.0
 
 
-@pytest.fixture(scope="module")
-def shots(tmp_path_factory):
-    d = tmp_path_factory.mktemp("screenshots")
-    yield d
-    print(f"\nscreenshots: {d}")
-
-
 class _Errors(logging.Handler):
     """ERROR lines the studio logs while the tests run (the server log a person would read)."""
 
@@ -60,12 +53,6 @@ def errors():
 def studio(tmp_path_factory, errors):
     with ui.running_studio(tmp_path_factory.mktemp("studio") / "data") as app:
         yield app
-
-
-@pytest.fixture(scope="module")
-def page(studio):
-    with ui.open_page(studio) as pg:
-        yield pg
 
 
 def _new_episode(studio, before: set[str]):

@@ -17,7 +17,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import browser_support as ui
-from browser_support import open_page, running_studio
+from browser_support import running_studio
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from data_fixtures import make_recording
@@ -34,13 +34,6 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.timeout(600)]
 
 
 @pytest.fixture(scope="module")
-def shots(tmp_path_factory):
-    d = tmp_path_factory.mktemp("screenshots")
-    yield d
-    print(f"\nscreenshots: {d}")
-
-
-@pytest.fixture(scope="module")
 def studio(tmp_path_factory):
     from studio.data.store import EpisodeStore
 
@@ -54,12 +47,6 @@ def studio(tmp_path_factory):
         add(make_recording(task=HELD, robot="sawyer", seed=4), role="expert", source="teleop")
     with running_studio(root) as app:
         yield app
-
-
-@pytest.fixture(scope="module")
-def page(studio):
-    with open_page(studio) as pg:
-        yield pg
 
 
 def _train_jobs(studio) -> list:

@@ -1,0 +1,38 @@
+"""Fixtures the browser-test modules share, each started once per module so that modules stay independent of
+each other's state: ``shots`` (where screenshots go), ``data_dir`` (an empty data directory; a module overrides
+it with the store its tests need), ``studio`` (the app with its embedded workers, on that directory) and
+``page`` (headless Chromium on the studio, once it is ready)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from browser_support import open_page, running_studio
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory):
+    d = tmp_path_factory.mktemp("screenshots")
+    yield d
+    print(f"\nscreenshots: {d}")
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("studio") / "data"
+
+
+@pytest.fixture(scope="module")
+def studio(data_dir):
+    with running_studio(data_dir) as app:
+        yield app
+
+
+@pytest.fixture(scope="module")
+def page(studio):
+    with open_page(studio) as pg:
+        yield pg
