@@ -79,8 +79,10 @@ class ClickPerson:
         )
 
     def button(self, name: str) -> None:
+        """Click a panel button as a person does: once the button is visible, still, enabled and on top (a forced
+        click skips those checks and can land on whatever the panel just moved there)."""
         self.actions.append(name)
-        self.page.get_by_role("button", name=name, exact=True).click(force=True, timeout=60_000)
+        self.page.get_by_role("button", name=name, exact=True).click(timeout=60_000)
 
     def move(self, name: str) -> np.ndarray:
         """Click a motion button (Down, Up, a nudge); returns where the app sends the gripper once it took it."""
@@ -129,7 +131,7 @@ class ClickPerson:
         tp = self.tp
         self.button("Record")
         wait_until(lambda: tp.recording, 30, "recording to start", self.state)
-        self.page.get_by_text("● REC").first.wait_for(timeout=60_000)
+        self.page.get_by_text("● REC").filter(visible=True).first.wait_for(timeout=60_000)
         wait_until(lambda: tp.latest_poses is not None and tp.rest_known, 20, "the reset scene's poses")
 
     def stop_and_save(self) -> None:
@@ -244,7 +246,7 @@ def measure(args: argparse.Namespace) -> dict:
                 page.add_init_script(THROTTLE_RAF)
                 t0 = time.perf_counter()
                 page.goto(app.url)
-                page.get_by_text("ready. Drag the gizmo").first.wait_for(timeout=120_000)
+                page.get_by_text("ready. Drag the gizmo").filter(visible=True).first.wait_for(timeout=120_000)
                 ready = time.perf_counter() - t0
                 (tab,) = app.tabs.values()
                 first_saved = None

@@ -209,7 +209,7 @@ def measure(args: argparse.Namespace) -> dict:
                 page.on("websocket", lambda ws: ws.on("framereceived", counter))
                 page.add_init_script(COUNT_FRAMES_JS)
                 page.goto(app.url + ("" if args.dpr is None else f"?fixedDpr={args.dpr:g}"))
-                page.get_by_text("ready. Drag the gizmo").first.wait_for(timeout=120_000)
+                page.get_by_text("ready. Drag the gizmo").filter(visible=True).first.wait_for(timeout=120_000)
                 renderer = page.evaluate(WEBGL_RENDERER_JS)
                 (tab,) = app.tabs.values()
                 teleop = tab.teleop
