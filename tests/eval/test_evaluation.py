@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from studio.eval.evaluation import add_arguments, run
 
@@ -176,3 +177,12 @@ def test_the_report_reads_by_attribute_and_its_json_form_keeps_the_dict_shape(tm
     assert [k for k in derived if k not in as_dict] == ["derived_from_replan"] and derived[
         "derived_from_replan"
     ] == 0
+    # A bound on each plan's execution is said (and kept by a derived budget); unbounded, the key is absent.
+    bounded = dataclasses.replace(report, plan_ticks=500)
+    assert [k for k in bounded.to_dict() if k not in as_dict] == ["plan_ticks"]
+    assert with_budget(bounded, 0).to_dict()["plan_ticks"] == 500
+
+
+def test_a_plan_tick_bound_below_one_is_refused(capsys, tmp_path):
+    assert run(_args("--plan-ticks", "0", "--data-dir", str(tmp_path))) == 2
+    assert "--plan-ticks must be >= 1, got 0" in capsys.readouterr().err

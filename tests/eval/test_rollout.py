@@ -92,6 +92,23 @@ def test_replanning_stays_in_the_same_episode(env):
     assert kinds.count("planning") == 2 and "replanning" in kinds and kinds[-1] == "outcome"
 
 
+def test_a_plan_cut_at_its_tick_bound_is_a_failed_attempt_and_the_next_plan_continues(env):
+    """The paper's protocol bounds each plan's execution (500 steps in Meta-World): the oracle's plan, given 40
+    ticks, is cut before it reaches the bar; the re-plan starts at tick 40 of the same episode, and given 40 more
+    ticks is cut too. Unbounded, the same rollout succeeds."""
+    frames = np.zeros((10, 240, 320, 3), np.uint8)
+    oracle = OraclePlanner(env)
+    whole = run_rollout(env, oracle, frames, "pick_place/bar->blue", 5)
+    assert whole.success and whole.recording.arrays["time"].shape[0] > 100
+    cut = run_rollout(env, oracle, frames, "pick_place/bar->blue", 5, replans=1, plan_ticks=40)
+    assert not cut.success and cut.failure_stage != "cancelled" and len(cut.plans) == 2
+    assert [p.start_tick for p in cut.plans] == [0, 40]
+    assert env.steps == 80  # both plans used their whole bound, no more
+    assert [k for k, _ in cut.events].count("plan time up") == 2
+    with pytest.raises(ValueError, match="plan_ticks must be >= 1"):
+        run_rollout(env, oracle, frames, "pick_place/bar->blue", 5, plan_ticks=0)
+
+
 def test_failure_stage_order():
     assert failure_stage({"reached": True, "grasped": True, "placed": True}) is None
     assert failure_stage({"reached": True, "grasped": False, "placed": False}) == "grasp"
