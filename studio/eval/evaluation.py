@@ -95,16 +95,39 @@ DEFAULT_EXPERT_EMBODIMENTS = ("sawyer", "human")
 _COLLECT_HINT = {"sawyer": "--robot sawyer", "human": "--robot hand", "panda": "--robot panda --role expert"}
 
 
+def demonstration_order(meta) -> tuple:
+    """Where a demonstration stands among those a rollout draws from: by what it is — embodiment, source, its
+    scripted collection slot (base seed, index) and scene seed — and by its id only among demonstrations that
+    share all of those (teleoperated or uploaded ones). Ids carry the time of storing, so ordering by id alone
+    made the same ``studio collect`` into a fresh data directory draw other demonstrations for the same seeds."""
+
+    def number(v: int | None) -> tuple[int, int]:
+        return (0, 0) if v is None else (1, int(v))
+
+    return (
+        meta.embodiment,
+        meta.source,
+        number(meta.collect_seed),
+        number(meta.collect_index),
+        number(meta.seed),
+        meta.num_frames,
+        meta.id,
+    )
+
+
 def _expert_choices(store, task: str, embodiments: Sequence[str] = DEFAULT_EXPERT_EMBODIMENTS) -> list[str]:
-    """Ids of the stored demonstrations of ``task`` by one of ``embodiments``, sorted."""
-    ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=list(embodiments))]
+    """Ids of the stored demonstrations of ``task`` by one of ``embodiments``, in :func:`demonstration_order`."""
+    metas = sorted(
+        store.episodes(task=task, role="expert", embodiment=list(embodiments)), key=demonstration_order
+    )
+    ids = [m.id for m in metas]
     if not ids:
         hint = _COLLECT_HINT.get(embodiments[0], "--robot sawyer")
         raise RuntimeError(
             f"no expert demonstration of {task!r} by {' or '.join(embodiments)} in the store; "
             f"collect some with: studio collect {hint} --tasks {task}"
         )
-    return sorted(ids)
+    return ids
 
 
 def choose_demonstration(store, job: EvalJob, embodiments: Sequence[str] = DEFAULT_EXPERT_EMBODIMENTS) -> str:

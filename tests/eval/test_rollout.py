@@ -349,3 +349,33 @@ def test_a_rollout_does_not_depend_on_the_number_of_evaluation_workers(tmp_path)
             _, _, xb = store.load_arrays(rb.episode_id)
             assert np.array_equal(xa["qpos"], xb["qpos"]), "the same plan, executed the same way"
             assert ra.extra["stage_ticks"] == rb.extra["stage_ticks"]
+
+
+@pytest.mark.slow
+def test_the_same_collection_and_evaluation_in_two_fresh_data_directories_give_the_same_table(tmp_path):
+    """An evaluation is a function of its seeds and of what the demonstrations show: the same `collect` into two
+    fresh data directories (other episode ids, other times) and the same evaluation of the shipped policy give
+    the same demonstrations, plans and outcomes, row for row. (Which demonstration a job draws no longer follows
+    the ids' order: tests/eval/test_evaluation.py stores the same slots in opposite orders.)"""
+    from studio.data.paths import SHIPPED_POLICY_DIR
+
+    ck = str(SHIPPED_POLICY_DIR / "pick-place-cpu.pt")
+    tables = []
+    for name in ("first", "second"):
+        root = tmp_path / name
+        _collect_bar_to_blue(root, 3)
+        report = evaluate(ck, ["pick_place/bar->blue"], 4, seed=6, data_dir=root, progress=False)
+        with EpisodeStore(root) as store:
+            slot = {m.id: (m.collect_seed, m.collect_index) for m in store.episodes()}
+            plans = {}
+            for r in store.catalog.rollouts():
+                with np.load(os.path.join(r.path, "plans.npz")) as p:
+                    plans[r.id] = p["plan0_waypoints_world"].round(6).tolist()
+        tables.append(
+            [
+                (r.index, r.seed, slot[r.expert_episode_id], r.success, r.failure_stage, plans[r.rollout_id])
+                for r in report.rows
+            ]
+        )
+    assert tables[0] == tables[1]
+    assert len({row[2] for row in tables[0]}) > 1, "the rollouts imitate more than one demonstration"
