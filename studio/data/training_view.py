@@ -7,8 +7,8 @@ combinatorial pairing of the paper) and yields the "training sample" dicts of th
   of N equal brackets, first and last frame always kept; redrawn per (seed, epoch, index);
 * ``agent_frames`` uint8 (M, 3, H, W): evenly spaced, first and last included;
 * ``path`` float32 (P, 4): the agent's end-effector position in the external camera frame (x right,
-  y down, z forward, metres) and its gripper command (0 open, 1 closed), at P evenly spaced control steps
-  over the whole episode;
+  y down, z forward, metres) and its gripper state, binary as in the paper (1 where the recorded command is
+  above :data:`GRIPPER_CLOSED_ABOVE`, else 0), at P evenly spaced control steps over the whole episode;
 * ``K`` float32 (3, 3) intrinsics at the sample's (H, W); ``T_world_cam`` float32 (4, 4);
 * ``task_index``, ``expert_index``, ``agent_index`` int64.
 
@@ -74,6 +74,11 @@ def resize_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         out = np.stack([cv2.resize(f, (w, h), interpolation=interp) for f in frames])
     return np.ascontiguousarray(out.transpose(0, 3, 1, 2))
 
+
+GRIPPER_CLOSED_ABOVE = 0.5
+"""A recorded gripper command above this is a closed gripper in the training labels. Meta-World's experts that do
+not grasp (button presses, pushes) record exactly 0.5 — effort 0 — which is open; labels of 0.5 would leave the
+model to predict a probability at the controller's threshold, a coin flip between opening and closing."""
 
 SAME_POOL_SCENES = frozenset({"metaworld"})
 """Scenes whose training pairs take both sides from the stored ``expert`` demonstrations (the paper's Meta-World)."""
@@ -479,8 +484,8 @@ class PairDataset:
         meta = self.episodes[agent_index]
         _, _, arrays = read_arrays(self._episodes_dir / meta.id)
         steps = even_indices(meta.num_steps, self.path_points)
-        p = np.concatenate([arrays["ee_pos_cam"][steps], arrays["gripper_cmd"][steps, None]], axis=1)
-        return p.astype(np.float32)
+        closed = arrays["gripper_cmd"][steps, None] > GRIPPER_CLOSED_ABOVE
+        return np.concatenate([arrays["ee_pos_cam"][steps], closed], axis=1).astype(np.float32)
 
     def _load_camera(self, episode_index: int) -> tuple[np.ndarray, np.ndarray]:
         _, model = read_meta(self._episodes_dir / self.episodes[episode_index].id)
@@ -488,7 +493,7 @@ class PairDataset:
         return model.K.astype(np.float32), model.T_world_cam.astype(np.float32)
 
     def path(self, agent_index: int) -> np.ndarray:
-        """(P, 4) float32: camera-frame end-effector xyz and gripper command at P evenly spaced steps."""
+        """(P, 4) float32: camera-frame end-effector xyz and binary gripper state at P evenly spaced steps."""
         return self._paths[agent_index]
 
     def camera(self, episode_index: int) -> tuple[np.ndarray, np.ndarray]:

@@ -53,6 +53,7 @@ class PolicyRun:
     eval_id: str
     extra: dict = field(default_factory=dict)  # added to each stored rollout's ``extra``
     grasp: str = "auto"  # grasp correction (studio.eval.rollout.GRASP_MODES)
+    plan_ticks: int | None = None  # control ticks each plan may execute (None: no bound)
 
 
 @dataclass(frozen=True)
@@ -94,16 +95,39 @@ DEFAULT_EXPERT_EMBODIMENTS = ("sawyer", "human")
 _COLLECT_HINT = {"sawyer": "--robot sawyer", "human": "--robot hand", "panda": "--robot panda --role expert"}
 
 
+def demonstration_order(meta) -> tuple:
+    """Where a demonstration stands among those a rollout draws from: by what it is — embodiment, source, its
+    scripted collection slot (base seed, index) and scene seed — and by its id only among demonstrations that
+    share all of those (teleoperated or uploaded ones). Ids carry the time of storing, so ordering by id alone
+    made the same ``studio collect`` into a fresh data directory draw other demonstrations for the same seeds."""
+
+    def number(v: int | None) -> tuple[int, int]:
+        return (0, 0) if v is None else (1, int(v))
+
+    return (
+        meta.embodiment,
+        meta.source,
+        number(meta.collect_seed),
+        number(meta.collect_index),
+        number(meta.seed),
+        meta.num_frames,
+        meta.id,
+    )
+
+
 def _expert_choices(store, task: str, embodiments: Sequence[str] = DEFAULT_EXPERT_EMBODIMENTS) -> list[str]:
-    """Ids of the stored demonstrations of ``task`` by one of ``embodiments``, sorted."""
-    ids = [m.id for m in store.episodes(task=task, role="expert", embodiment=list(embodiments))]
+    """Ids of the stored demonstrations of ``task`` by one of ``embodiments``, in :func:`demonstration_order`."""
+    metas = sorted(
+        store.episodes(task=task, role="expert", embodiment=list(embodiments)), key=demonstration_order
+    )
+    ids = [m.id for m in metas]
     if not ids:
         hint = _COLLECT_HINT.get(embodiments[0], "--robot sawyer")
         raise RuntimeError(
             f"no expert demonstration of {task!r} by {' or '.join(embodiments)} in the store; "
             f"collect some with: studio collect {hint} --tasks {task}"
         )
-    return sorted(ids)
+    return ids
 
 
 def choose_demonstration(store, job: EvalJob, embodiments: Sequence[str] = DEFAULT_EXPERT_EMBODIMENTS) -> str:
@@ -193,6 +217,7 @@ def _run_job(
         on_tick=on_tick,
         should_stop=should_stop,
         controller_config=grasp_controller(env.scene, policy.grasp),
+        plan_ticks=policy.plan_ticks,
     )
     if out.failure_stage == "cancelled":
         raise InterruptedError("stopped before the rollout ended")
@@ -348,14 +373,16 @@ class EvaluationReport:
     wall_s: float
     workers: int
     rows: tuple[RolloutSummary, ...]
+    #: Control ticks each plan could execute (None: no bound; the paper's Meta-World protocol: 500).
+    plan_ticks: int | None = None
     #: Set by :func:`with_budget`: the budget of the evaluation these rows were cut from.
     derived_from_replan: int | None = None
     #: Set by :func:`with_budget` when it cut some tasks only: those tasks.
     replan_cut_tasks: tuple[str, ...] | None = None
 
     def to_dict(self) -> dict:
-        """The report as JSON-ready built-ins; the keys ``derived_from_replan`` and ``replan_cut_tasks`` only
-        when set."""
+        """The report as JSON-ready built-ins; the keys ``plan_ticks``, ``derived_from_replan`` and
+        ``replan_cut_tasks`` only when set."""
         out: dict = {
             "tasks": {task: asdict(breakdown) for task, breakdown in self.tasks.items()},
             "success": self.success,
@@ -373,6 +400,8 @@ class EvaluationReport:
             "wall_s": self.wall_s,
             "workers": self.workers,
         }
+        if self.plan_ticks is not None:
+            out["plan_ticks"] = self.plan_ticks
         if self.derived_from_replan is not None:
             out["derived_from_replan"] = self.derived_from_replan
         if self.replan_cut_tasks is not None:
@@ -509,12 +538,14 @@ def evaluate(
     progress: bool = True,
     expert_embodiments: Sequence[str] | None = None,
     grasp: str = "auto",
+    plan_ticks: int | None = None,
 ) -> EvaluationReport:
     """Run the evaluation and return its report (the rollouts are also written into the catalog).
 
     ``expert_embodiments`` picks whose demonstrations the rollouts imitate (None: Sawyer or human; Meta-World: the
     Sawyer, its only demonstrator). The demonstrations are drawn before the first rollout. ``grasp`` is the grasp
-    correction (:data:`studio.eval.rollout.GRASP_MODES`; ``auto``: the scene's own).
+    correction (:data:`studio.eval.rollout.GRASP_MODES`; ``auto``: the scene's own). ``plan_ticks`` bounds each
+    plan's execution in control ticks (None: no bound).
     """
     from studio.data.paths import resolve_data_dir
     from studio.eval.rollout import grasp_controller
@@ -535,7 +566,9 @@ def evaluate(
     with EpisodeStore(root) as store:
         jobs = with_demonstrations(store, make_jobs(tasks, episodes, seed), experts)
     started = time.perf_counter()
-    policy = PolicyRun(checkpoint, checkpoint_id, eval_id, grasp=grasp)
+    if plan_ticks is not None and plan_ticks < 1:
+        raise ValueError(f"plan_ticks must be >= 1, got {plan_ticks}")
+    policy = PolicyRun(checkpoint, checkpoint_id, eval_id, grasp=grasp, plan_ticks=plan_ticks)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -575,6 +608,7 @@ def evaluate(
         seed=seed,
         replan=replan,
         grasp_correction=grasp,
+        plan_ticks=plan_ticks,
         expert_embodiments=experts,
         episodes_per_task=episodes,
         wall_s=time.perf_counter() - started,
@@ -621,6 +655,22 @@ def add_grasp_correction_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+#: The paper's bound on one plan's execution in Meta-World, in simulation steps (one step = one control tick).
+PAPER_PLAN_TICKS = 500
+
+
+def add_plan_ticks_argument(parser: argparse.ArgumentParser) -> None:
+    """``--plan-ticks``: control ticks each plan may execute before it counts as failed."""
+    parser.add_argument(
+        "--plan-ticks",
+        type=int,
+        default=None,
+        metavar="TICKS",
+        help="control ticks each plan may execute; a plan cut there is a failed attempt, and the next re-plan "
+        f"starts from where the arm is (default: no bound; the paper's Meta-World protocol: {PAPER_PLAN_TICKS})",
+    )
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--checkpoint", required=True, help="checkpoint file, or 'oracle' for the execution ceiling"
@@ -638,6 +688,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--episodes", type=int, default=10, help="rollouts per task")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--replan", type=int, default=0, help="re-plans allowed inside an episode on failure")
+    add_plan_ticks_argument(parser)
     parser.add_argument("--workers", type=int, default=1, help="parallel rollout processes")
     parser.add_argument(
         "--robot", default=None, help="the agent robot (default: panda; sawyer for metaworld)"
@@ -659,6 +710,8 @@ def run(args: argparse.Namespace) -> int:
             scene = scene_of_task(names[0])  # task names give their scene; --scene is for the split words
         tasks = resolve_tasks(scene, names)
         experts = expert_embodiments_of(args)
+        if args.plan_ticks is not None and args.plan_ticks < 1:
+            raise ValueError(f"--plan-ticks must be >= 1, got {args.plan_ticks}")
     except ValueError as err:
         print(f"studio eval: {err}", file=sys.stderr)
         return 2
@@ -674,6 +727,7 @@ def run(args: argparse.Namespace) -> int:
         keep=not args.no_store,
         expert_embodiments=experts,
         grasp=args.grasp_correction,
+        plan_ticks=args.plan_ticks,
     )
     if args.json:
         print(json.dumps(report.to_dict(), default=float))

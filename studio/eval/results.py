@@ -9,9 +9,10 @@ the scene's held-out tasks once, with the largest ``--replan`` budget and the sa
 same scenes and demonstrations; the rows of smaller budgets are those rollouts cut after fewer attempts
 (``evaluation.with_budget``: exact, since re-plans continue the same deterministic episode), which halves the
 cost of the usual ``--replan 0 2``. A split with ``replan_groups`` (Meta-World: hard) adds a row per policy in the
-paper's protocol: re-plans on those groups' tasks only, one attempt on the rest. Writes the Markdown (per-task
-success, the mean over each of the split's test groups — Meta-World's easy and hard, the layout of the paper's
-Table 1 — the reached/grasped/placed breakdown, planning time, wall time) and, beside it, the full JSON reports.
+paper's protocol: re-plans on those groups' tasks only, one attempt on the rest; its evaluation bounds each plan
+to the paper's 500 control ticks (``--plan-ticks``). Writes the Markdown (per-task success, the mean over each of
+the split's test groups — Meta-World's easy and hard, the layout of the paper's Table 1 — the
+reached/grasped/placed breakdown, planning time, wall time) and, beside it, the full JSON reports.
 ``oracle`` as a checkpoint gives the execution ceiling. ``--expert-embodiment`` picks whose demonstrations are
 imitated (``studio eval``'s option; e.g. ``human`` for Human-Franka, ``panda`` for Two-Franka).
 """
@@ -27,6 +28,7 @@ from pathlib import Path
 from studio.data.paths import add_data_dir_argument
 from studio.data.splits import SplitSpec, load_split, resolve_tasks
 from studio.eval.evaluation import (
+    PAPER_PLAN_TICKS,
     EvaluationReport,
     add_expert_embodiment_argument,
     add_grasp_correction_argument,
@@ -145,6 +147,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--plan-ticks",
+        type=int,
+        default=None,
+        metavar="TICKS",
+        help="control ticks each plan may execute (default: the paper's "
+        f"{PAPER_PLAN_TICKS} for a split with replan_groups, Meta-World; no bound otherwise)",
+    )
     add_grasp_correction_argument(parser)
     add_expert_embodiment_argument(parser)
     parser.add_argument("--out", default=None, help="Markdown file to write (default: print only)")
@@ -159,6 +169,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     tasks = resolve_tasks(args.scene, "held-out")
     split = load_split(args.scene)
+    plan_ticks = args.plan_ticks
+    if plan_ticks is None and split.replan_groups:
+        plan_ticks = PAPER_PLAN_TICKS  # the paper's protocol bounds each plan of a Meta-World episode
+    if plan_ticks is not None and plan_ticks < 1:
+        print(f"studio results: --plan-ticks must be >= 1, got {plan_ticks}", file=sys.stderr)
+        return 2
     reports: list[tuple[str, int | str, EvaluationReport]] = []
     # One evaluation per policy at the largest budget; the smaller budgets are its rollouts cut after fewer attempts.
     most = max(args.replan)
@@ -174,15 +190,17 @@ def run(args: argparse.Namespace) -> int:
             args.data_dir,
             expert_embodiments=experts,
             grasp=args.grasp_correction,
+            plan_ticks=plan_ticks,
         )
         reports += budget_rows(name, report, args.replan, split)
     table = render_markdown(reports, split.test_groups)
     machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, {platform.platform()}"
     demos = f"; demonstrations by {', '.join(experts)}" if experts else ""
     grasp = "" if args.grasp_correction == "auto" else f"; grasp correction: {args.grasp_correction}"
+    bound = "" if plan_ticks is None else f"; each plan executes at most {plan_ticks} control ticks"
     text = (
         f"Held-out tasks of `{args.scene}` ({', '.join(tasks)}), {args.episodes} rollouts per task, seed "
-        f"{args.seed}{demos}{grasp}; {machine}.\n\n{table}"
+        f"{args.seed}{demos}{grasp}{bound}; {machine}.\n\n{table}"
     )
     print(text)
     if args.out:

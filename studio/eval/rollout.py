@@ -9,6 +9,10 @@ This is where the model and the simulator meet (they never import each other). A
 4. if the task has not succeeded and re-plans remain, takes a fresh observation of the *same* episode and
    plans again with the same demonstration.
 
+``plan_ticks`` bounds each plan's execution in control ticks (the paper's Meta-World protocol: 500 steps per
+plan, so 2,000 in all with 3 re-plans); an execution cut there counts as a failed attempt and the next plan, if
+any, starts from where the arm is. None: no bound but the controller's own per-waypoint limits.
+
 Everything needed to inspect it afterwards is returned: the recording (frames + full-rate arrays), every
 plan (waypoints in world and camera frames, the predicted latent trajectory, planning time, the tick it
 started at), the outcome with the stage at which it failed, and the physics state of every tick, from which
@@ -128,12 +132,15 @@ def run_rollout(
     on_tick: Callable[[], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
     controller_config: ControllerConfig | None = None,
+    plan_ticks: int | None = None,
 ) -> RolloutOutcome:
     """Run one rollout of ``task`` from ``seed`` on ``env`` imitating ``expert_frames`` (N, H, W, 3) uint8.
 
     ``on_tick`` is called after every control tick (live display); ``should_stop`` is polled every tick
     and ends the rollout early (cancellation) — the outcome then says ``failure_stage="cancelled"``.
     """
+    if plan_ticks is not None and plan_ticks < 1:
+        raise ValueError(f"plan_ticks must be >= 1, got {plan_ticks}")
     started = time.perf_counter()
     env.reset(task, seed)
     events: list[tuple[str, dict]] = []
@@ -146,11 +153,18 @@ def run_rollout(
     recorder = Recorder(env)
     recorder.tick()
 
+    attempt_state = {"ticks": 0, "cut": False, "stopped": False}
+
     def tick() -> None:
         recorder.tick()
+        attempt_state["ticks"] += 1
         if on_tick is not None:
             on_tick()
         if should_stop is not None and should_stop():
+            attempt_state["stopped"] = True
+            controller.cancelled = True
+        elif plan_ticks is not None and attempt_state["ticks"] >= plan_ticks:
+            attempt_state["cut"] = True  # this plan's time is up: end its execution, not the rollout
             controller.cancelled = True
 
     cfg = controller_config or grasp_controller(env.scene)
@@ -184,6 +198,10 @@ def run_rollout(
         )
         event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
         controller.execute(wps)
+        if attempt_state["cut"] and not attempt_state["stopped"]:
+            event("plan time up", {"attempt": attempt, "ticks": attempt_state["ticks"]})
+            controller.cancelled = False
+        attempt_state.update(ticks=0, cut=False)
         attempt_stages.append({k: bool(v) for k, v in env.stages().items()})
         if attempt_stages[-1]["placed"] or controller.cancelled:
             break

@@ -6,7 +6,9 @@ decoder (``DecoderConfig``), with the named presets.
 * ``paper`` — the paper's sizes for the pick-and-place benchmarks, for reproducing it on a GPU: 240×320 input,
   the whole ResNet-18 trunk (F = 512 channels, an 8×10 map), 2 causal action blocks with 4 heads, 1 world-model
   block with 4 heads and width 512, batch 128 for 10 epochs, α = 1 constant, AdamW with a one-cycle schedule
-  2e-4 → 2e-7.
+  2e-4 → 2e-7. Where it is not the paper's (or the reference code's), :data:`PAPER_DEPARTURES` names the field
+  and why: the trunk starts from random weights (``model.pretrained``; the paper: ImageNet, an opt-in here),
+  gradients are clipped (``train.grad_clip``), pairs are mirrored (``train.hflip``) and zoomed (``train.scale``).
 * ``paper-metaworld`` — the paper's Meta-World variant: 224×224 input (a 7×7 map), 6 action blocks with dropout
   0.3, α decaying exponentially 1 → 0.05.
 * ``cpu`` — what the studio trains on a 2-core CPU: 72×96 input through the trunk up to layer2 (stride 8, a 9×12
@@ -384,6 +386,16 @@ def _from_dict(cls, d: dict[str, Any]):
 
 
 PRESETS = ("paper", "paper-metaworld", "cpu")
+#: Where the ``paper`` and ``paper-metaworld`` presets depart from the paper and its reference code, and why;
+#: every other field of theirs is the paper's size or setting. ``--set FIELD=VALUE`` undoes any of them.
+PAPER_DEPARTURES: dict[str, str] = {
+    "model.pretrained": "random initialisation: the paper starts ResNet-18 from ImageNet weights, which would be "
+    "a download at run time; model.pretrained=true opts in",
+    "train.grad_clip": "gradients clipped to norm 1.0; the reference code does not clip (the paper is silent)",
+    "train.hflip": "pairs mirrored half the time; the reference code flips horizontally and vertically, each half "
+    "the time (the paper does not mention flips)",
+    "train.scale": "a zoom of 0.95-1.05; the reference code crops and translates but does not zoom",
+}
 #: Training settings the ``cpu`` preset adds for one scene, each measured (docs/experiments.md); a scene not listed
 #: (Meta-World) gets the preset as it is. The demonstration-task loss: on pick-and-place it was the only setting
 #: that found the demonstrated object; on Meta-World it made held-out success collapse; on push it taught "the

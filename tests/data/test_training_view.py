@@ -148,7 +148,7 @@ def test_sample_contract(store):
         steps = even_indices(meta.num_steps, 50)
         assert steps[0] == 0 and steps[-1] == meta.num_steps - 1
         np.testing.assert_allclose(s["path"][:, :3], arrays["ee_pos_cam"][steps], rtol=1e-6)
-        np.testing.assert_array_equal(s["path"][:, 3], arrays["gripper_cmd"][steps])
+        np.testing.assert_array_equal(s["path"][:, 3], arrays["gripper_cmd"][steps] > 0.5)
         # K at the sample's size projects the path onto the right pixels of the resized image.
         cam = store.load_camera(meta.id)
         np.testing.assert_allclose(s["K"], cam.resized(H, W).K, rtol=1e-6)
@@ -157,6 +157,29 @@ def test_sample_contract(store):
         np.testing.assert_allclose(
             uv_small[:, :2] / uv_small[:, 2:], uv_full[:, :2] / uv_full[:, 2:] * [W / 64, H / 48], rtol=1e-4
         )
+
+
+def test_gripper_labels_are_binary_and_an_effort_of_zero_is_open(tmp_path):
+    """Meta-World's experts that do not grasp record exactly 0.5 (effort 0): the training label is open (0), and a
+    grasp's 0.8 is closed (1), as the paper's binary gripper state."""
+    s = EpisodeStore(tmp_path)
+    for seed, task in enumerate((T1, T2, T3)):
+        s.add_episode(make_recording(task=task, robot="sawyer", seed=seed), role="expert", source="scripted")
+        rec = make_recording(task=task, robot="panda", seed=10 + seed)
+        steps = len(rec.arrays["gripper_cmd"])
+        rec.arrays["gripper_cmd"] = np.where(np.arange(steps) < steps // 2, 0.5, 0.8)
+        s.add_episode(rec, role="agent", source="scripted")
+    ds = PairDataset(
+        s,
+        split="train",
+        image_size=SIZE,
+        split_spec=SplitSpec(scene="pick_place", train=(T1, T2), test=(T3,)),
+    )
+    for i in range(len(ds)):
+        labels = ds[i]["path"][:, 3]
+        assert set(np.unique(labels)) == {0.0, 1.0}
+        half = len(labels) // 2
+        assert (labels[: half - 1] == 0).all() and (labels[half + 1 :] == 1).all()
 
 
 def test_frames_match_store_at_training_size(store):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from studio.eval.evaluation import add_arguments, run
 
@@ -176,3 +177,40 @@ def test_the_report_reads_by_attribute_and_its_json_form_keeps_the_dict_shape(tm
     assert [k for k in derived if k not in as_dict] == ["derived_from_replan"] and derived[
         "derived_from_replan"
     ] == 0
+    # A bound on each plan's execution is said (and kept by a derived budget); unbounded, the key is absent.
+    bounded = dataclasses.replace(report, plan_ticks=500)
+    assert [k for k in bounded.to_dict() if k not in as_dict] == ["plan_ticks"]
+    assert with_budget(bounded, 0).to_dict()["plan_ticks"] == 500
+
+
+def test_a_plan_tick_bound_below_one_is_refused(capsys, tmp_path):
+    assert run(_args("--plan-ticks", "0", "--data-dir", str(tmp_path))) == 2
+    assert "--plan-ticks must be >= 1, got 0" in capsys.readouterr().err
+
+
+def test_the_demonstrations_drawn_depend_on_what_was_collected_not_on_episode_ids(tmp_path):
+    """The same scripted collection stored twice, in other orders and under other ids: every job draws the same
+    collection slot in both stores (ids carry the time of storing)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
+    from data_fixtures import make_recording
+
+    from studio.data.store import EpisodeStore
+    from studio.eval.evaluation import make_jobs, with_demonstrations
+
+    task = "pick_place/bar->blue"
+    slots = [(7, i) for i in range(6)]
+    drawn = []
+    for name, order in (("a", slots), ("b", slots[::-1])):
+        with EpisodeStore(tmp_path / name) as store:
+            for base, index in order:
+                rec = make_recording(task=task, robot="sawyer", seed=base * 100 + index)
+                store.add_episode(
+                    rec, role="expert", source="scripted", collect_seed=base, collect_index=index
+                )
+            jobs = with_demonstrations(store, make_jobs([task], 12, seed=3))
+            by_id = {m.id: (m.collect_seed, m.collect_index) for m in store.episodes()}
+            drawn.append([by_id[j.expert_episode_id] for j in jobs])
+    assert drawn[0] == drawn[1] and len(set(drawn[0])) > 2

@@ -143,3 +143,28 @@ def test_paper_protocol_row_replans_on_the_hard_tasks_only():
     single = _evaluated({t: [[True]] for t in MW_TASKS}, replan=0)
     assert [k for _, k, _ in budget_rows("p", single, [0], load_split("metaworld"))] == [0]
     assert [k for _, k, _ in budget_rows("p", report, [0, 2], load_split("pick_place"))] == [0, 2]
+
+
+@pytest.mark.parametrize(
+    ("scene", "given", "bound"),
+    [("metaworld", None, 500), ("pick_place", None, None), ("metaworld", 300, 300)],
+)
+def test_results_bound_each_plan_as_the_paper_on_meta_world(scene, given, bound, monkeypatch, capsys):
+    """The paper's Meta-World protocol gives each plan 500 steps: `studio results` evaluates Meta-World so unless
+    told otherwise, says so above the table, and bounds nothing elsewhere."""
+    import studio.eval.results as results
+
+    seen = {}
+
+    def fake_evaluate(checkpoint, tasks, *args, plan_ticks=None, **kwargs):
+        seen["plan_ticks"] = plan_ticks
+        return _evaluated({t: [[True]] for t in tasks}, replan=2)
+
+    monkeypatch.setattr(results, "evaluate", fake_evaluate)
+    parser = argparse.ArgumentParser()
+    results.add_arguments(parser)
+    argv = ["--policy", "p=oracle", "--scene", scene, *(["--plan-ticks", str(given)] if given else [])]
+    assert results.run(parser.parse_args(argv)) == 0
+    out = capsys.readouterr().out
+    assert seen["plan_ticks"] == bound
+    assert (f"each plan executes at most {bound} control ticks" in out) == (bound is not None)

@@ -92,6 +92,23 @@ def test_replanning_stays_in_the_same_episode(env):
     assert kinds.count("planning") == 2 and "replanning" in kinds and kinds[-1] == "outcome"
 
 
+def test_a_plan_cut_at_its_tick_bound_is_a_failed_attempt_and_the_next_plan_continues(env):
+    """The paper's protocol bounds each plan's execution (500 steps in Meta-World): the oracle's plan, given 40
+    ticks, is cut before it reaches the bar; the re-plan starts at tick 40 of the same episode, and given 40 more
+    ticks is cut too. Unbounded, the same rollout succeeds."""
+    frames = np.zeros((10, 240, 320, 3), np.uint8)
+    oracle = OraclePlanner(env)
+    whole = run_rollout(env, oracle, frames, "pick_place/bar->blue", 5)
+    assert whole.success and whole.recording.arrays["time"].shape[0] > 100
+    cut = run_rollout(env, oracle, frames, "pick_place/bar->blue", 5, replans=1, plan_ticks=40)
+    assert not cut.success and cut.failure_stage != "cancelled" and len(cut.plans) == 2
+    assert [p.start_tick for p in cut.plans] == [0, 40]
+    assert env.steps == 80  # both plans used their whole bound, no more
+    assert [k for k, _ in cut.events].count("plan time up") == 2
+    with pytest.raises(ValueError, match="plan_ticks must be >= 1"):
+        run_rollout(env, oracle, frames, "pick_place/bar->blue", 5, plan_ticks=0)
+
+
 def test_failure_stage_order():
     assert failure_stage({"reached": True, "grasped": True, "placed": True}) is None
     assert failure_stage({"reached": True, "grasped": False, "placed": False}) == "grasp"
@@ -332,3 +349,33 @@ def test_a_rollout_does_not_depend_on_the_number_of_evaluation_workers(tmp_path)
             _, _, xb = store.load_arrays(rb.episode_id)
             assert np.array_equal(xa["qpos"], xb["qpos"]), "the same plan, executed the same way"
             assert ra.extra["stage_ticks"] == rb.extra["stage_ticks"]
+
+
+@pytest.mark.slow
+def test_the_same_collection_and_evaluation_in_two_fresh_data_directories_give_the_same_table(tmp_path):
+    """An evaluation is a function of its seeds and of what the demonstrations show: the same `collect` into two
+    fresh data directories (other episode ids, other times) and the same evaluation of the shipped policy give
+    the same demonstrations, plans and outcomes, row for row. (Which demonstration a job draws no longer follows
+    the ids' order: tests/eval/test_evaluation.py stores the same slots in opposite orders.)"""
+    from studio.data.paths import SHIPPED_POLICY_DIR
+
+    ck = str(SHIPPED_POLICY_DIR / "pick-place-cpu.pt")
+    tables = []
+    for name in ("first", "second"):
+        root = tmp_path / name
+        _collect_bar_to_blue(root, 3)
+        report = evaluate(ck, ["pick_place/bar->blue"], 4, seed=6, data_dir=root, progress=False)
+        with EpisodeStore(root) as store:
+            slot = {m.id: (m.collect_seed, m.collect_index) for m in store.episodes()}
+            plans = {}
+            for r in store.catalog.rollouts():
+                with np.load(os.path.join(r.path, "plans.npz")) as p:
+                    plans[r.id] = p["plan0_waypoints_world"].round(6).tolist()
+        tables.append(
+            [
+                (r.index, r.seed, slot[r.expert_episode_id], r.success, r.failure_stage, plans[r.rollout_id])
+                for r in report.rows
+            ]
+        )
+    assert tables[0] == tables[1]
+    assert len({row[2] for row in tables[0]}) > 1, "the rollouts imitate more than one demonstration"

@@ -210,3 +210,23 @@ def test_typed_changes_are_validated_like_a_new_configuration():
 def test_a_text_may_be_written_as_a_json_string():
     run = preset("cpu").with_overrides(['train.precision="bf16"', 'train.demo_task_labels="parts"'])
     assert (run.train.precision, run.train.demo_task_labels) == ("bf16", "parts")
+
+
+def test_every_departure_of_the_paper_preset_is_a_field_it_sets_and_is_named_in_the_docs():
+    """The ``paper`` preset is the paper's except where PAPER_DEPARTURES says otherwise: each named field exists, the
+    preset really departs there (random weights, clipping, flips, zoom), and the module docstring names it."""
+    import studio.model.config as config
+
+    run = config.preset("paper")
+    values = {
+        "model.pretrained": False,
+        "train.grad_clip": 1.0,
+        "train.hflip": 0.5,
+        "train.scale": (0.95, 1.05),
+    }
+    assert set(config.PAPER_DEPARTURES) == set(values)
+    for key, value in values.items():
+        section, field_name = key.split(".")
+        assert getattr(getattr(run, section), field_name) == value, key
+        assert f"``{key}``" in (config.__doc__ or ""), f"the module docstring does not name {key}"
+    assert run.with_overrides(["model.pretrained=true", "train.grad_clip=0"]).train.grad_clip == 0
