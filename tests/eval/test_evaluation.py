@@ -59,7 +59,8 @@ def test_expert_embodiments_choose_the_demonstrations(tmp_path):
                 make_recording(robot=robot, seed=i), role="expert", source="scripted"
             ).id
         store.add_episode(make_recording(robot="panda", seed=9), role="agent", source="scripted")
-        assert _expert_choices(store, task) == sorted([ids["sawyer"], ids["hand"]])  # another embodiment's
+        # Another embodiment's than the Panda agent's, in demonstration_order (by what they are: human first).
+        assert _expert_choices(store, task) == [ids["hand"], ids["sawyer"]]
         assert _expert_choices(store, task, ("human",)) == [ids["hand"]]
         assert _expert_choices(store, task, ("panda",)) == [ids["panda"]]
         with pytest.raises(RuntimeError, match="studio collect --robot hand"):
