@@ -15,8 +15,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import browser_support as ui
 from browser_stores import training_episodes_and_a_failed_rollout
 
-PUSH_HELD_OUT = "push/blue-backward"
-
 # Tests that share the app are slow one by one (marked); the fast ones stay in `-m "not slow"` runs.
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(420)]
 

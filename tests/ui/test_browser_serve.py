@@ -18,11 +18,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import browser_support as ui
 from browser_support import THROTTLE_RAF
 
-HELD_OUT = "pick_place/bar->blue"
-PUSH_HELD_OUT = "push/blue-backward"
-TRAIN_TASKS = ("pick_place/cube->red", "pick_place/cube->green")
-
-# Tests that share the app are slow one by one (marked); the fast ones stay in `-m "not slow"` runs.
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(420)]
 
 

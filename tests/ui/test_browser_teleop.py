@@ -20,10 +20,7 @@ from studio.model.checkpoint_info import read_checkpoint_info
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import browser_support as ui
-
-HELD_OUT = "pick_place/bar->blue"
-PUSH_HELD_OUT = "push/blue-backward"
-TRAIN_TASKS = ("pick_place/cube->red", "pick_place/cube->green")
+from browser_stores import HELD_OUT
 
 # Tests that share the app are slow one by one (marked); the fast ones stay in `-m "not slow"` runs.
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(420)]
