@@ -2,6 +2,7 @@
 
     studio quickstart [--data-dir DIR] [--out RUN_DIR] [--variant osvi-wm|no-world-model] [--episodes N]
                       [--steps S] [--refine-steps R] [--grow-steps G] [--eval-episodes E]
+                      [--precision auto|fp32|bf16]
 
 Stages, each resumable (re-running the command skips finished work):
 
@@ -24,7 +25,9 @@ Stages, each resumable (re-running the command skips finished work):
    none), ``--eval-episodes`` rollouts per unseen task, with ``--replan`` re-plans.
 
 The wall time of each stage and the result go to stdout and to ``RUN_DIR/quickstart.json``. The training stages
-are the recipe measured best so far on pick-and-place (docs/experiments.md).
+are the recipe measured best so far on pick-and-place (docs/experiments.md). Every stage trains in
+``--precision``: ``auto`` is bf16 autocast where the CPU computes bf16 natively (AVX-512 BF16 or AMX;
+``studio.model.precision``), else fp32.
 ``--variant`` picks the model and its default schedule (``VARIANT_STEPS``): the full OSVI-WM (default; 1600 +
 1100 steps without 𝒲, then 700 with it) or the paper's no-world-model ablation (1600 + 1100 steps). The full
 model is grown rather than trained whole from the start because, trained whole at this budget, its plan follows
@@ -45,6 +48,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from studio.data.paths import add_data_dir_argument, resolve_data_dir
+from studio.model.precision import PRECISION_CHOICES, resolve_precision
 from studio.model.recipes import RECIPES
 
 if TYPE_CHECKING:
@@ -101,6 +105,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes")
     parser.add_argument(
+        "--precision",
+        choices=PRECISION_CHOICES,
+        default="auto",
+        help="training precision: auto (bf16 autocast where the CPU computes it natively, else fp32), fp32 or bf16",
+    )
+    parser.add_argument(
         "--set",
         nargs="*",
         action="extend",
@@ -148,6 +158,8 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         raise SystemExit(f"studio quickstart: {err}") from None
     early = early_overrides(args.variant, args.grow_steps)
+    precision = resolve_precision(args.precision)
+    print(f"== training precision {precision} (--precision {args.precision})", file=sys.stderr, flush=True)
     recipe = VARIANT_RECIPES[args.variant]
     root = resolve_data_dir(args.data_dir)
     out = Path(args.out) if args.out else root / "runs" / "quickstart"
@@ -184,6 +196,7 @@ def run(args: argparse.Namespace) -> int:
                 str(args.workers),
                 *(["--init", str(init)] if init else []),
                 "--set",
+                f"train.precision={precision}",
                 *settings,
                 *args.set,
             ]
@@ -261,6 +274,7 @@ def run(args: argparse.Namespace) -> int:
         "rollouts": report.rollouts,
         "replan": args.replan,
         "variant": args.variant,
+        "precision": precision,
         "checkpoint": str(checkpoint),
         "eval_id": report.eval_id,
         "args": {k: v for k, v in vars(args).items() if not k.startswith("_")},

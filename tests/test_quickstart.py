@@ -10,6 +10,7 @@ import torch
 
 from studio.cli import main
 from studio.model.checkpoint import load_checkpoint
+from studio.model.precision import resolve_precision
 from studio.model.recipes import recipe
 from studio.quickstart import VARIANT_RECIPES, add_arguments, early_overrides, schedule
 
@@ -69,6 +70,10 @@ def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, 
     grow_run = json.loads((tmp_path / "run" / "grow" / "config.json").read_text())
     assert grow_run["init"] == str(tmp_path / "run" / "refine" / "best.pt")
     assert summary["variant"] == "osvi-wm"
+    # Every stage trains in the precision ``auto`` chose for this machine.
+    assert summary["precision"] == resolve_precision("auto")
+    for ckpt in (base, refined, grown):
+        assert ckpt["config"]["train"]["precision"] == summary["precision"]
     assert summary["rollouts"] == 2 and set(summary["tasks"]) == {
         "pick_place/bar->blue",
         "pick_place/bar->yellow",
@@ -85,7 +90,8 @@ def test_quickstart_collects_trains_evaluates_and_reports_stage_times(tmp_path, 
 def test_quickstart_trains_the_full_model_unless_told_otherwise():
     parser = argparse.ArgumentParser()
     add_arguments(parser)
-    assert parser.parse_args([]).variant == "osvi-wm"
+    assert parser.parse_args([]).variant == "osvi-wm" and parser.parse_args([]).precision == "auto"
+    assert VARIANT_RECIPES["osvi-wm"] == "pick-place"
     # Each variant brings its own schedule unless the steps are given.
     assert schedule("osvi-wm", None, None) == (1600, 1100, 700)
     assert schedule("no-world-model", None, None) == (1600, 1100, 0)
