@@ -123,6 +123,17 @@ def click(locator) -> None:
     locator.click(timeout=60_000)
 
 
+def double_click(page, locator) -> None:
+    """Double-click as a person does: two presses milliseconds apart at the centre of ``locator``, once it passes
+    the checks of :func:`click`. Not Playwright's ``dblclick``: when the first click disables the button before
+    the second press, the browser swallows that press, Playwright takes it for a missed click and repeats the whole
+    double click once the button is enabled again, clicking a second time what no person clicked twice."""
+    locator.hover(timeout=60_000)
+    box = locator.bounding_box()
+    assert box is not None, f"{locator} has no box on the page"
+    page.mouse.dblclick(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+
+
 def click_and_see(page, locator, shows: str) -> None:
     """Click once, then wait until the page shows ``shows``."""
     click(locator)

@@ -76,7 +76,7 @@ def test_collect_scripted_episodes_from_the_data_tab(studio, page, shots):
     clicks = []
     on_start = data._on_start
     data._on_start = lambda: (clicks.append(1), on_start())
-    start.dblclick(timeout=60_000)
+    ui.double_click(page, start)
     ui.wait(lambda: _collect_jobs(studio), 30, "the collect job to be queued", lambda: _state(data))
     page.get_by_text("2 of 2 episodes stored (2 new)").filter(visible=True).first.wait_for(timeout=120_000)
     assert len(_collect_jobs(studio)) == 1, (

@@ -174,8 +174,12 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
     # Draft chunks leave every 0.1 s (5 ticks): at most that and the chunk in flight are lost, and a tick the dead
     # worker published no pose of can only be one sent in the same instant.
     assert held_steps - 10 <= resumed <= held_steps + 1, (held_steps, resumed)
-    ee = np.asarray(tp.client.latest_pose().ee_pos)
-    assert np.linalg.norm(ee - lift[:3]) < 0.02, "the arm is where it was when its worker died"
+    # The restarted worker's session state can arrive before its first pose frame.
+    pose = tp.client.poses.wait_until(lambda f: True, 10)
+    assert pose is not None, f"no pose from the restarted worker; {ui.teleop_state(tab)}"
+    assert np.linalg.norm(np.asarray(pose.ee_pos) - lift[:3]) < 0.02, (
+        "the arm is where it was when its worker died"
+    )
     ui.open_tab(page, "Inspect", "Recording the fork")
     ui.shot(page, shots / "fork-resumed.png", scroll_to="Fork from this moment")
     drag(carry[:3], 2.0)

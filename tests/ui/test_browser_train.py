@@ -108,7 +108,7 @@ def test_a_double_click_on_start_queues_one_job_whose_result_becomes_active(stud
     page.get_by_text("batch size 16 lowered to 2").filter(visible=True).first.wait_for(timeout=30_000)
     train.steps.value = 4
     page.get_by_text("Start: 4 steps of batch 2").filter(visible=True).first.wait_for(timeout=30_000)
-    page.get_by_role("button", name="Start training").dblclick(timeout=60_000)
+    ui.double_click(page, page.get_by_role("button", name="Start training"))
     page.get_by_text("ended: finished").filter(visible=True).first.wait_for(timeout=300_000)
     ui.wait(lambda: not tab.actions, 30, "both clicks to be handled")
     jobs = _train_jobs(studio)
