@@ -38,11 +38,18 @@ def data_dir(tmp_path_factory):
 def test_training_job_started_from_the_ui_shows_progress(studio, page, shots):
     tab = ui.tab(studio)
     train = tab.train
-    ui.click(page.get_by_role("tab", name="Train"))
+    ui.open_tab(page, "Train", "training pair")
     for task, box in train._task_boxes.items():
         box.value = task in TRAIN_TASKS
     train.overrides.value = "; ".join(TINY_BATCHED)
     train.steps.value = 4
+    page.get_by_text("Start: 4 steps").filter(visible=True).first.wait_for(timeout=60_000)
+    ui.wait(
+        lambda: not train.start.disabled,
+        60,
+        "Start to be enabled",
+        lambda: f"pairs {train.pairs.content!r}; plan {train.plan.content!r}; actions {tab.actions}",
+    )
     ui.click(page.get_by_role("button", name="Start training"))
     page.get_by_text("step 4/4").filter(visible=True).first.wait_for(timeout=240_000)
     page.get_by_text("ended: finished").filter(visible=True).first.wait_for(timeout=60_000)
