@@ -140,6 +140,20 @@ def click_and_see(page, locator, shows: str) -> None:
     page.get_by_text(shows).filter(visible=True).first.wait_for(timeout=60_000)
 
 
+def click_until(locator, done, what: str, state=None, tries: int = 3, each: float = 20) -> None:
+    """Click an idempotent action until ``done()`` holds: a person clicks again when nothing happened. On a loaded
+    machine a click can land while the panel is still moving (a folder opening above it) and reach nothing;
+    clicking twice what already worked only repeats it. Fails after ``tries`` clicks."""
+    for attempt in range(1, tries + 1):
+        click(locator)
+        try:
+            wait(done, each, what, state)
+            return
+        except AssertionError:
+            if attempt == tries:
+                raise
+
+
 def click_and_wait(locator, wait_done) -> None:
     """Click once, then ``wait_done()`` (which raises if what the click does never happens)."""
     click(locator)
@@ -160,9 +174,21 @@ def choose(page, combobox: str, option, taken, what: str, state=None, timeout: f
     return wait(taken, timeout, what, state)
 
 
-def open_tab(page, name: str, shows: str) -> None:
-    """Open a tab and wait until its content shows."""
-    click_and_see(page, page.get_by_role("tab", name=name), shows)
+def open_tab(page, name: str, shows: str, tries: int = 3) -> None:
+    """Open a tab and wait until its content shows; clicked again if it did not open (a tab already open stays
+    open when clicked), as a person would."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    for attempt in range(1, tries + 1):
+        click(page.get_by_role("tab", name=name))
+        try:
+            page.get_by_text(shows).filter(visible=True).first.wait_for(
+                timeout=20_000 if attempt < tries else 60_000
+            )
+            return
+        except PlaywrightTimeout:
+            if attempt == tries:
+                raise
 
 
 def tab(studio):

@@ -76,7 +76,7 @@ def test_plan_and_execute_on_a_held_out_task(studio, page, shots):
     tab = ui.tab(studio)
     im = tab.imitate
     studio.runs.set_active("oracle", "pick_place")  # the execution ceiling, clearly labelled as such
-    ui.click(page.get_by_role("tab", name="Imitate"))
+    ui.open_tab(page, "Imitate", "Choose a")
     label = HELD_OUT + " (held-out)"
     assert label in im.task.options
     im.task.value = label
@@ -144,7 +144,7 @@ def test_trained_checkpoint_plans_with_decoded_latent_images(studio, page, shots
     )
     assert done.returncode == 0, done.stderr[-2000:]
     studio.runs.set_active(f"{run.name}/last")
-    ui.click(page.get_by_role("tab", name="Imitate"))
+    ui.open_tab(page, "Imitate", "Choose a")
     ui.wait(lambda: f"{run.name}/last" in im.policy.content, 20, "the trained policy to be active")
     ui.click(page.get_by_role("button", name="Plan", exact=True))
     ui.wait(lambda: im.latent_strip.visible, 120, "the decoded latent trajectory")
@@ -252,13 +252,19 @@ def test_compare_tab_runs_two_checkpoints_and_plays_a_differing_seed_side_by_sid
         "the comparison's evaluations",
     )
     cmp.rows = []
-    ui.click_and_see(page, page.get_by_role("button", name="Compare stored rollouts"), "2 shared episodes")
+    ui.click_until(
+        page.get_by_role("button", name="Compare stored rollouts"),
+        lambda: "2 shared episodes" in cmp.status.content,
+        "the stored evaluations compared",
+        lambda: f"status {cmp.status.content!r}; actions {tab.actions}",
+    )
+    page.get_by_text("2 shared episodes").filter(visible=True).first.wait_for(timeout=60_000)
     assert [r.to_dict() for r in cmp.rows] == ran
 
 
 def test_workers_panel_lists_the_embedded_workers(studio, page, shots):
     tab = ui.tab(studio)
-    ui.click(page.get_by_role("tab", name="Workers"))
+    ui.open_tab(page, "Workers", "workers on the bus")
     for worker in studio.embedded.workers:
         page.get_by_text(worker).filter(visible=True).first.wait_for(timeout=60_000)
     text = tab.workers.describe()
@@ -277,7 +283,7 @@ def test_plan_and_execute_with_the_shipped_policy(studio, page, shots):
     policy = studio.runs.shipped_for("pick_place")
     assert policy is not None, "no shipped pick-and-place policy"
     studio.runs.set_active(policy.id)
-    ui.click(page.get_by_role("tab", name="Imitate"))
+    ui.open_tab(page, "Imitate", "Choose a")
     im.task.value = HELD_OUT + " (held-out)"
     ui.wait(lambda: policy.id in im.policy.content, 20, "the shipped policy to be active")
     assert policy.summary and policy.summary in im.policy_details.content, (

@@ -87,7 +87,7 @@ def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, pa
     from studio.data.video import write_video
 
     tab = ui.tab(studio)
-    ui.click(page.get_by_role("tab", name="Upload"))
+    ui.open_tab(page, "Upload", "Upload a video of")
     tab.upload.task.value = HELD_OUT
     frames = np.full((30, 120, 160, 3), 235, np.uint8)
     for i in range(30):
@@ -109,8 +109,7 @@ def test_upload_appears_in_the_dataset_and_a_corrupt_file_is_rejected(studio, pa
     ui.shot(page, shots / "upload-rejected.png")
     assert len(studio.store.episodes(source="upload")) == 1, "a rejected file must write nothing"
 
-    ui.click(page.get_by_role("tab", name="Data"))
-    page.get_by_text("1 upload").filter(visible=True).first.wait_for(timeout=60_000)
+    ui.open_tab(page, "Data", "1 upload")
     tab.datasets.open(up.id)
     page.get_by_text(up.id).filter(visible=True).first.wait_for(timeout=60_000)
     assert (
