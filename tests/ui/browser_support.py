@@ -152,6 +152,9 @@ def click_until(locator, done, what: str, state=None, tries: int = 3, each: floa
         except AssertionError:
             if attempt == tries:
                 raise
+            warnings.warn(
+                f"clicked again: {what} had not happened {each:g} s after click {attempt}", stacklevel=2
+            )
 
 
 def click_and_wait(locator, wait_done) -> None:
@@ -189,6 +192,9 @@ def open_tab(page, name: str, shows: str, tries: int = 3) -> None:
         except PlaywrightTimeout:
             if attempt == tries:
                 raise
+            warnings.warn(
+                f"clicked again: tab {name!r} did not show {shows!r} after click {attempt}", stacklevel=2
+            )
 
 
 def tab(studio):
