@@ -91,9 +91,9 @@ def test_quickstart_trains_the_full_model_unless_told_otherwise():
     parser = argparse.ArgumentParser()
     add_arguments(parser)
     assert parser.parse_args([]).variant == "osvi-wm" and parser.parse_args([]).precision == "auto"
-    assert VARIANT_RECIPES["osvi-wm"] == "pick-place"
+    assert VARIANT_RECIPES["osvi-wm"] == "pick-place-quick"
     # Each variant brings its own schedule unless the steps are given.
-    assert schedule("osvi-wm", None, None) == (1600, 1100, 700)
+    assert schedule("osvi-wm", None, None) == (1300, 900, 600)
     assert schedule("no-world-model", None, None) == (1600, 1100, 0)
     assert schedule("no-world-model", 5, 0) == (5, 0, 0) and schedule("osvi-wm", 5, 0, 0) == (5, 0, 0)
     with pytest.raises(ValueError, match="no-world-model variant has none"):

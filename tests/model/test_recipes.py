@@ -104,3 +104,17 @@ def test_the_command_line_refuses_a_stage_without_its_start_or_its_recipe(capsys
     assert "give the recipe too" in capsys.readouterr().err
     assert main(["train", "--data", "x", "--out", "y", "--recipe", "push", "--stage", "polish"]) == 2
     assert "its stages: base, grow" in capsys.readouterr().err
+
+
+def test_the_quick_recipe_is_pick_place_at_48_by_64_on_a_shorter_schedule():
+    quick, full = recipe("pick-place-quick"), recipe("pick-place")
+    assert quick.scene == full.scene and [s.steps for s in quick.stages] == [1300, 900, 600]
+    for q, f in zip(quick.stages, full.stages, strict=True):
+        assert dict(q.model) == {**f.model, "image_size": (48, 64)} and q.train == f.train
+        assert (q.name, q.seed_offset, q.init_from, q.init_checkpoint) == (
+            f.name,
+            f.seed_offset,
+            f.init_from,
+            f.init_checkpoint,
+        )
+        assert stage_config("pick-place-quick", q.name)[0].model.image_size == (48, 64)
