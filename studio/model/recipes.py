@@ -104,10 +104,11 @@ _PICK_PLACE_GROW = Stage(
 # halve a step (bf16, 2 threads: no-𝒲 0.40 → 0.20 s, grow 0.72 → 0.35 s on a synthetic batch); the bar and the
 # zones stay several cells wide.
 _QUICK_SIZE = {"image_size": (48, 64)}
-_QUICK = (
-    replace(_PICK_PLACE_BASE, steps=1300, model=_frozen({**_NO_WORLD_MODEL, **_QUICK_SIZE})),
-    replace(_PICK_PLACE_REFINE, steps=900, model=_frozen({**_NO_WORLD_MODEL, **_QUICK_SIZE})),
-    replace(_PICK_PLACE_GROW, steps=600, model=_frozen(_QUICK_SIZE)),
+_QUICK = tuple(
+    replace(stage, steps=steps, model=_frozen({**stage.model, **_QUICK_SIZE}))
+    for stage, steps in zip(
+        (_PICK_PLACE_BASE, _PICK_PLACE_REFINE, _PICK_PLACE_GROW), (1300, 900, 600), strict=True
+    )
 )
 _METAWORLD_SIZE = {"image_size": (96, 96)}
 
