@@ -618,7 +618,10 @@ class TrainPanel:
             sdtw = wm = np.full(len(step), np.nan)
         else:
             step, loss, sdtw, wm, lr = (curves[k] for k in ("step", "loss", "loss_sdtw", "loss_wm", "lr"))
-        key = (len(step), float(step[-1]) if len(step) else 0.0)
+        # The source is part of what is shown: curves drawn from the job's progress messages (no metrics file
+        # yet) have no separate losses, and must be replaced once the file holds the same steps.
+        source = "history" if curves is None or len(curves["step"]) == 0 else "file"
+        key = (source, len(step), float(step[-1]) if len(step) else 0.0)
         if self._shown.get("curves") == key:
             return
         self._shown["curves"] = key

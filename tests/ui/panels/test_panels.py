@@ -1,4 +1,5 @@
-"""Pure helpers of the panels: dataset counts, override parsing, task labels, a compared rollout's stage."""
+"""Pure helpers of the panels: dataset counts, override parsing, task labels, a compared rollout's stage, the Train
+tab's loss curves."""
 
 from types import SimpleNamespace
 
@@ -165,3 +166,25 @@ def test_a_compared_rollout_says_what_it_does_at_each_step_and_holds_its_end():
     assert task_choices("push")[:3] == ("held-out", "train", "all") and "push/blue-backward" in task_choices(
         "push"
     )
+
+
+def test_loss_curves_from_progress_messages_give_way_to_the_metrics_file_at_the_same_step(tmp_path):
+    """The Train tab first draws the total loss from the job's progress messages; once ``metrics.jsonl`` holds the
+    same steps, its separate losses must replace them (they stayed blank when the step count matched)."""
+    import json
+
+    from studio.ui.panels.train import TrainPanel
+
+    plot = lambda: SimpleNamespace(data=None, scales=None)  # noqa: E731
+    panel = SimpleNamespace(_shown={}, loss_plot=plot(), lr_plot=plot())
+    history = [SimpleNamespace(step=s, metrics={"loss": 1.0 / s, "lr": 1e-4}) for s in range(1, 5)]
+    tracked = SimpleNamespace(spec={"run_dir": str(tmp_path)}, history=history)
+    TrainPanel._show_curves(panel, tracked)
+    assert panel.loss_plot.data[0][-1] == 4 and not np.isfinite(panel.loss_plot.data[2]).any()
+    rows = [
+        {"step": s, "loss": 1.0 / s, "loss_sdtw": 0.5 / s, "loss_wm": 0.1, "lr": 1e-4} for s in range(1, 5)
+    ]
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    TrainPanel._show_curves(panel, tracked)
+    assert panel.loss_plot.data[0][-1] == 4 and np.isfinite(panel.loss_plot.data[2]).all()
+    assert np.allclose(panel.loss_plot.data[3], 0.1)
