@@ -11,7 +11,10 @@ This is where the model and the simulator meet (they never import each other). A
 
 ``plan_ticks`` bounds each plan's execution in control ticks (the paper's Meta-World protocol: 500 steps per
 plan, so 2,000 in all with 3 re-plans); an execution cut there counts as a failed attempt and the next plan, if
-any, starts from where the arm is. None: no bound but the controller's own per-waypoint limits.
+any, starts from where the arm is. Within a bound the controller spends the time as the paper's code does: each of
+the K waypoints may take ``plan_ticks // K`` ticks (the reference's ``try_limit``, 100 for 500 ticks and 5
+waypoints), and a waypoint where the hand has stopped short (:data:`STALL_TICKS`) is left at once. None: no bound
+but the controller's own per-waypoint limits.
 
 Everything needed to inspect it afterwards is returned: the recording (frames + full-rate arrays), every
 plan (waypoints in world and camera frames, the predicted latent trajectory, planning time, the tick it
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -43,6 +46,8 @@ GRASP_CORRECTION_SCENES = ("pick_place", "metaworld")
 #: ``height`` = centre over the object and grasp no higher than its middle, ``centre`` = centre only (the paper's
 #: correction), ``off`` = execute the grasp as planned.
 GRASP_MODES = ("auto", "height", "centre", "off")
+#: Within a plan's tick budget, a waypoint is left when the hand has moved less than 2 mm in this many ticks.
+STALL_TICKS = 10
 
 
 def grasp_controller(scene: str, mode: str = "auto") -> ControllerConfig:
@@ -170,6 +175,8 @@ def run_rollout(
     cfg = controller_config or grasp_controller(env.scene)
     if grasp_correction is not None:
         cfg.grasp_correction = grasp_correction
+    if plan_ticks is not None and cfg.stall_ticks is None:
+        cfg = replace(cfg, stall_ticks=STALL_TICKS)
     controller = WaypointController(env, cfg, on_tick=tick, on_event=event)
     plans: list[PlanRecord] = []
     attempt_stages: list[dict[str, bool]] = []
@@ -197,7 +204,7 @@ def run_rollout(
             )
         )
         event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
-        controller.execute(wps)
+        controller.execute(wps, None if plan_ticks is None else plan_ticks // max(1, len(wps)))
         if attempt_state["cut"] and not attempt_state["stopped"]:
             event("plan time up", {"attempt": attempt, "ticks": attempt_state["ticks"]})
             controller.cancelled = False

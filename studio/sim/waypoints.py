@@ -3,7 +3,9 @@
 A waypoint is a world position of the grasp site plus a gripper flag (closed or open once the
 waypoint is reached). The controller:
 
-* moves to each waypoint in turn, advancing when within ``tolerance`` or after ``max_ticks``;
+* moves to each waypoint in turn, advancing when within ``tolerance`` or after ``max_ticks`` (a smaller per-waypoint
+  budget may be given to :meth:`WaypointController.execute`), or — with ``stall_ticks`` set — as soon as the hand has
+  stopped moving short of it (blocked by the object it pushes, or out of reach);
 * before a *grasp* (open → closed) waypoint, first goes to a point ``approach_height`` above it, runs
   grasp correction from the wrist depth camera if enabled (:mod:`studio.sim.grasp_correction`, three
   iterations), descends, closes the gripper and waits for the fingers to settle. Where the wrist camera found
@@ -67,6 +69,10 @@ class ControllerConfig:
             is horizontal); off gives the paper's behaviour. Measured in docs/experiments.md.
         close_ticks: ticks to wait after closing the gripper; ``open_ticks`` likewise after opening.
         min_grasp_z: lowest grasp-site height for a grasp (keeps fingertips off the table), per robot.
+        stall_ticks: once the commanded point has arrived at a waypoint, move on (not reached) when the hand has
+            moved less than ``stall_distance`` over this many ticks; None waits for ``max_ticks``. Rollouts whose
+            plans have a tick budget set it (:func:`studio.eval.rollout.run_rollout`), as a blocked waypoint
+            would otherwise spend ``max_ticks`` of that budget standing still.
     """
 
     tolerance: float = 0.01
@@ -84,6 +90,8 @@ class ControllerConfig:
     min_grasp_z: dict[str, float] = field(
         default_factory=lambda: {"panda": 0.045, "sawyer": 0.045, "hand": 0.02}
     )
+    stall_ticks: int | None = None
+    stall_distance: float = 0.002
 
 
 @dataclass
@@ -140,6 +148,8 @@ class WaypointController:
         goal = np.clip(np.asarray(target, dtype=np.float64), WORKSPACE[0], WORKSPACE[1])
         carrot = self.env.ee_pos.copy()
         step = speed * self.env.control_dt
+        stall = self.config.stall_ticks
+        arrived: list[np.ndarray] = []  # the hand's positions since the commanded point reached the goal
         for _ in range(limit):
             if self.cancelled:
                 return False
@@ -147,8 +157,17 @@ class WaypointController:
             dist = float(np.linalg.norm(delta))
             carrot = goal.copy() if dist <= step else carrot + delta * (step / dist)
             self._tick(carrot, gripper)
-            if np.linalg.norm(self.env.ee_pos - goal) < tol:
+            hand = self.env.ee_pos
+            if np.linalg.norm(hand - goal) < tol:
                 return True
+            if stall is not None and dist <= step:
+                arrived.append(hand.copy())
+                if (
+                    len(arrived) > stall
+                    and np.linalg.norm(hand - arrived[-1 - stall]) < self.config.stall_distance
+                ):
+                    self._event("stalled", distance=float(np.linalg.norm(hand - goal)))
+                    return False
         return False
 
     def hold(self, gripper: float, ticks: int) -> None:
@@ -176,14 +195,16 @@ class WaypointController:
             self.move_to(point, 0.0, max_ticks=60, tolerance=0.004)
         return point, top
 
-    def execute(self, waypoints: np.ndarray) -> ExecutionResult:
-        """Execute (K, 4) waypoints [x, y, z, gripper] in the world frame."""
+    def execute(self, waypoints: np.ndarray, waypoint_ticks: int | None = None) -> ExecutionResult:
+        """Execute (K, 4) waypoints [x, y, z, gripper] in the world frame; ``waypoint_ticks`` lowers the ticks each
+        waypoint's move may take below ``max_ticks`` (a plan with a tick budget gives each waypoint its share)."""
         wps = np.asarray(waypoints, dtype=np.float64)
         if wps.ndim != 2 or wps.shape[1] != 4:
             raise ValueError(f"waypoints must be (K, 4) [x, y, z, gripper], got {wps.shape}")
         if not np.all(np.isfinite(wps)):
             raise ValueError("waypoints contain NaN or inf")
         cfg = self.config
+        limit = cfg.max_ticks if waypoint_ticks is None else max(1, min(cfg.max_ticks, waypoint_ticks))
         start = self.env.steps
         reached, corrections = [], []
         closed = self.env.gripper_cmd >= GRIPPER_THRESHOLD
@@ -195,22 +216,22 @@ class WaypointController:
                 lowest = cfg.min_grasp_z.get(self.env.robot, 0.03)
                 pos[2] = max(pos[2], lowest)
                 above = pos + np.array([0.0, 0.0, cfg.approach_height])
-                self.move_to(above, 0.0)
+                self.move_to(above, 0.0, max_ticks=limit)
                 if cfg.grasp_correction:
                     above, top = self.correct_grasp(above)
                     corrections.append(above[:2] - pos[:2])
                     pos[:2] = above[:2]
                     if cfg.correct_grasp_height and top is not None:  # the table is at z = 0
                         pos[2] = max(min(pos[2], top / 2.0), lowest)
-                ok = self.move_to(pos, 0.0, speed=cfg.grasp_speed, tolerance=cfg.grasp_tolerance)
+                ok = self.move_to(pos, 0.0, limit, cfg.grasp_tolerance, cfg.grasp_speed)
                 self.hold(1.0, cfg.close_ticks)
                 closed = True
             elif closed and not want_closed:  # release
-                ok = self.move_to(pos, 1.0)
+                ok = self.move_to(pos, 1.0, max_ticks=limit)
                 self.hold(0.0, cfg.open_ticks)
                 closed = False
             else:
-                ok = self.move_to(pos, 1.0 if closed else 0.0)
+                ok = self.move_to(pos, 1.0 if closed else 0.0, max_ticks=limit)
             reached.append(bool(ok))
             if self.cancelled:
                 break

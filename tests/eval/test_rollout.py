@@ -109,6 +109,27 @@ def test_a_plan_cut_at_its_tick_bound_is_a_failed_attempt_and_the_next_plan_cont
         run_rollout(env, oracle, frames, "pick_place/bar->blue", 5, plan_ticks=0)
 
 
+class TableTop:
+    """Plans five waypoints that the open hand cannot reach (its fingertips meet the table 2 cm above them)."""
+
+    def plan(self, expert_frames, agent_frame, K, T_world_cam):
+        wps = np.array([[x, 0.5, 0.012, 0.0] for x in (-0.2, -0.1, 0.0, 0.1, 0.2)])
+        return type("P", (), {"waypoints_world": wps})()
+
+
+def test_within_a_plans_tick_bound_each_waypoint_gets_its_share_and_a_blocked_one_is_left(env):
+    """Bounded as the paper's protocol is, a plan's K waypoints each get ``plan_ticks // K`` ticks (the reference's
+    ``try_limit``) and one where the hand has stopped short is left: the five blocked waypoints are all tried within
+    the bound. Unbounded, each takes the controller's whole 120 ticks."""
+    frames = np.zeros((10, 240, 320, 3), np.uint8)
+    unbounded = run_rollout(env, TableTop(), frames, "pick_place/bar->blue", 5)
+    assert env.steps == 5 * 120 and not any(k == "stalled" for k, _ in unbounded.events)
+    bounded = run_rollout(env, TableTop(), frames, "pick_place/bar->blue", 5, plan_ticks=250)
+    waypoints = [k for k, _ in bounded.events if k == "waypoint"]
+    assert len(waypoints) == 5 and env.steps < 250 and "plan time up" not in [k for k, _ in bounded.events]
+    assert sum(k == "stalled" for k, _ in bounded.events) >= 3
+
+
 def test_failure_stage_order():
     assert failure_stage({"reached": True, "grasped": True, "placed": True}) is None
     assert failure_stage({"reached": True, "grasped": False, "placed": False}) == "grasp"

@@ -99,3 +99,31 @@ def test_a_grasp_planned_too_high_is_lowered_to_the_object_only_with_height_corr
     high[0, 2] += 0.03  # the model's typical miss on the flat bar: the grasp 2-3 cm above the scripted one
     cfg = ControllerConfig(correct_grasp_height=correct_height)
     assert WaypointController(env, cfg).execute(high).success == correct_height
+
+
+def test_a_waypoint_the_hand_cannot_reach_is_left_once_the_hand_stops_when_stall_ticks_is_set(env_factory):
+    env = env_factory("pick_place", "panda")
+    below = np.array([0.0, 0.5, 0.012])  # the open fingertips meet the table 2 cm above this
+    ticks = {}
+    for stall in (None, 10):
+        env.reset("pick_place/cube->red", 2)
+        events: list[str] = []
+        config = ControllerConfig(grasp_correction=False, stall_ticks=stall)
+        ctl = WaypointController(env, config, on_event=lambda k, i, seen=events: seen.append(k))
+        start = env.steps
+        assert not ctl.move_to(below, 0.0)
+        ticks[stall] = env.steps - start
+        assert ("stalled" in events) == (stall is not None)
+    assert ticks[None] == ControllerConfig().max_ticks and ticks[10] < 60, ticks
+
+
+def test_each_waypoint_moves_for_at_most_its_share_of_a_plans_ticks(env_factory):
+    env = env_factory("pick_place", "panda")
+    far = np.array([[0.25, 0.35, 0.3, 0], [-0.25, 0.65, 0.3, 0], [0.25, 0.35, 0.3, 0]])  # 0.58 m apart
+    ctl = WaypointController(env, ControllerConfig(grasp_correction=False, max_ticks=200))
+    env.reset("pick_place/cube->red", 2)
+    whole = ctl.execute(far)
+    assert all(whole.reached) and whole.ticks > 120  # the controller's own limit lets it get there
+    env.reset("pick_place/cube->red", 2)
+    short = ctl.execute(far, waypoint_ticks=30)
+    assert not short.reached[1] and short.ticks <= 90
