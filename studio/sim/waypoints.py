@@ -28,6 +28,7 @@ Progress is reported through an optional callback (``on_event(kind, info)``) and
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -149,7 +150,8 @@ class WaypointController:
         carrot = self.env.ee_pos.copy()
         step = speed * self.env.control_dt
         stall = self.config.stall_ticks
-        arrived: list[np.ndarray] = []  # the hand's positions since the commanded point reached the goal
+        # The hand's last ``stall + 1`` positions since the commanded point reached the goal.
+        arrived: deque[np.ndarray] = deque(maxlen=None if stall is None else stall + 1)
         for _ in range(limit):
             if self.cancelled:
                 return False
@@ -162,10 +164,7 @@ class WaypointController:
                 return True
             if stall is not None and dist <= step:
                 arrived.append(hand.copy())
-                if (
-                    len(arrived) > stall
-                    and np.linalg.norm(hand - arrived[-1 - stall]) < self.config.stall_distance
-                ):
+                if len(arrived) > stall and np.linalg.norm(hand - arrived[0]) < self.config.stall_distance:
                     self._event("stalled", distance=float(np.linalg.norm(hand - goal)))
                     return False
         return False

@@ -616,11 +616,12 @@ class TrainPanel:
             loss = np.array([h.metrics["loss"] for h in hist])
             lr = np.array([h.metrics.get("lr", np.nan) for h in hist])
             sdtw = wm = np.full(len(step), np.nan)
+            source = "history"
         else:
             step, loss, sdtw, wm, lr = (curves[k] for k in ("step", "loss", "loss_sdtw", "loss_wm", "lr"))
+            source = "file"
         # The source is part of what is shown: curves drawn from the job's progress messages (no metrics file
         # yet) have no separate losses, and must be replaced once the file holds the same steps.
-        source = "history" if curves is None or len(curves["step"]) == 0 else "file"
         key = (source, len(step), float(step[-1]) if len(step) else 0.0)
         if self._shown.get("curves") == key:
             return
