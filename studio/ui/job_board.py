@@ -57,6 +57,8 @@ class TrackedJob:
 
     # callbacks (Zenoh threads)
     def _on_status(self, status: msg.JobStatus) -> None:
+        if not self.spec and status.spec:  # followed before its spec was known (see JobBoard.follow)
+            self.spec = dict(status.spec)
         self.status = status
 
     def _on_progress(self, p: msg.JobProgress) -> None:
@@ -101,6 +103,12 @@ class JobBoard:
         with self._lock:
             tracked = self._jobs.get(job)
             if tracked is not None:
+                # A tab refreshing between choosing a job id and submitting it follows the job with no spec
+                # yet; the spec (where its run writes its curves) and who started it are filled in when known.
+                if not tracked.spec and spec:
+                    tracked.spec = dict(spec)
+                if tracked.started_by is None:
+                    tracked.started_by = started_by
                 return tracked
             tracked = TrackedJob(job, kind, spec or {}, started_by)
             self._jobs[job] = tracked
