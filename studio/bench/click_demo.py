@@ -19,6 +19,7 @@ import argparse
 import os
 import tempfile
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -45,6 +46,79 @@ def wait_until(
     raise AssertionError(
         f"timed out after {timeout} s waiting for {what}" + (f"; {state()}" if state else "")
     )
+
+
+#: Where a button's centre is, whether it is visible and enabled, and whether it is on top there (what a press at
+#: that point reaches): read with one evaluation, which needs no drawn frame.
+_BUTTON_AT = """(el) => {
+  const r = el.getBoundingClientRect();
+  if (r.bottom < 0 || r.top > innerHeight) el.scrollIntoView({block: 'center'});
+  const b = el.getBoundingClientRect(), x = b.left + b.width / 2, y = b.top + b.height / 2;
+  const top = document.elementFromPoint(x, y);
+  const shown = b.width > 0 && b.height > 0 && getComputedStyle(el).visibility !== 'hidden';
+  return {x, y, w: b.width, h: b.height, ready: shown && !el.disabled && !!top && el.contains(top)};
+}"""
+#: Whether the page draws: an animation frame within 2 s, else how long it waited.
+_FRAME_PROBE = """() => new Promise((done) => {
+  const t0 = performance.now();
+  requestAnimationFrame(() => done(`a frame after ${Math.round(performance.now() - t0)} ms`));
+  setTimeout(() => done('no animation frame in 2 s'), 2000);
+})"""
+
+
+def press(page, locator, count: int = 1, timeout: float = 60.0) -> None:
+    """Press ``locator`` ``count`` times at its centre once it is visible, enabled, on top there and still (the
+    same box in two reads 0.2 s apart), as a person clicks what they see. Unlike Playwright's checks, these need
+    no drawn frame, so a press still lands while a loaded browser draws none."""
+    deadline, last = time.monotonic() + timeout, None
+    while True:
+        at = locator.evaluate(_BUTTON_AT)
+        if at["ready"] and at == last:
+            break
+        if time.monotonic() > deadline:
+            raise AssertionError(
+                f"{locator} was not visible, enabled, on top and still within {timeout:g} s: {at}"
+            )
+        last = at
+        time.sleep(0.2)
+    if count == 2:
+        page.mouse.dblclick(at["x"], at["y"])
+    else:
+        page.mouse.click(at["x"], at["y"], click_count=count)
+
+
+def _browser_load() -> str:
+    """The Chromium processes using the most CPU now (``ps``), for a warning about a page that stopped drawing."""
+    import subprocess
+
+    try:
+        out = subprocess.run(
+            ["ps", "-C", "chromium", "-o", "pcpu=,rss=,args="], capture_output=True, text=True, timeout=5
+        ).stdout
+    except (OSError, subprocess.SubprocessError) as e:
+        return f"ps failed: {e}"
+    busiest = []
+    for row in out.splitlines():
+        cpu, _, args = [*row.split(None, 2), "", ""][:3]
+        kind = next((a.removeprefix("--type=") for a in args.split() if a.startswith("--type=")), "browser")
+        busiest.append((float(cpu or 0), kind))
+    return ", ".join(f"{kind} {cpu:.0f} % CPU" for cpu, kind in sorted(busiest, reverse=True)[:4])
+
+
+def click_button(page, locator, wait: float = 20.0) -> str | None:
+    """Click ``locator`` with Playwright's checks; when they cannot pass within ``wait`` seconds, :func:`press` it
+    instead. Returns None, or what the page's frames and the browser's processes were doing when the checks did
+    not pass (for a warning)."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    try:
+        locator.click(timeout=wait * 1000)
+        return None
+    except PlaywrightTimeout:
+        frames = str(page.evaluate(_FRAME_PROBE))
+        load = _browser_load()
+    press(page, locator)
+    return f"{frames}; {load}"
 
 
 def screen_point(page, client, point: np.ndarray) -> tuple[float, float]:
@@ -82,7 +156,11 @@ class ClickPerson:
         """Click a panel button as a person does: once the button is visible, still, enabled and on top (a forced
         click skips those checks and can land on whatever the panel just moved there)."""
         self.actions.append(name)
-        self.page.get_by_role("button", name=name, exact=True).click(timeout=60_000)
+        stalled = click_button(self.page, self.page.get_by_role("button", name=name, exact=True))
+        if stalled is not None:
+            warnings.warn(
+                f"{name}: Playwright's checks did not pass in 20 s ({stalled}); pressed it", stacklevel=2
+            )
 
     def move(self, name: str) -> np.ndarray:
         """Click a motion button (Down, Up, a nudge); returns where the app sends the gripper once it took it."""

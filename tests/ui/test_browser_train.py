@@ -108,11 +108,13 @@ def test_a_double_click_on_start_queues_one_job_whose_result_becomes_active(stud
     page.get_by_text("batch size 16 lowered to 2").filter(visible=True).first.wait_for(timeout=30_000)
     train.steps.value = 4
     page.get_by_text("Start: 4 steps of batch 2").filter(visible=True).first.wait_for(timeout=30_000)
+    ui.wait(lambda: not train.start.disabled, 30, "Start to be enabled", lambda: _state(train))
     ui.double_click(page, page.get_by_role("button", name="Start training"))
     page.get_by_text("ended: finished").filter(visible=True).first.wait_for(timeout=300_000)
     ui.wait(lambda: not tab.actions, 30, "both clicks to be handled")
     jobs = _train_jobs(studio)
     assert len(jobs) == 1, [j.job for j in jobs]
+    assert not jobs[0].spec.get("fine_tune"), "the presses reached Fine-tune, not Start"
     job = jobs[0].job
     assert train.job_id == job and (studio.data_dir / "runs" / job / "last.pt").is_file()
     ui.wait(lambda: len(train.loss_plot.data[0]) == 4, 30, "the loss curve", lambda: _state(train))
