@@ -242,8 +242,12 @@ def down_height(
 
 
 def object_label(body: str) -> str:
-    """How the status line names a body (``obj_cube`` → ``cube``)."""
-    return body[4:] if body.startswith("obj_") else body
+    """How the status line names a body (``obj_cube`` → ``cube``, ``target_red`` → ``red zone``)."""
+    if body.startswith("obj_"):
+        return body[4:]
+    if body.startswith("target_"):
+        return f"{body[7:]} zone"
+    return body
 
 
 def min_jerk(start: np.ndarray, goal: np.ndarray, s: float) -> np.ndarray:

@@ -78,8 +78,10 @@ class ShootingPerson(ClickPerson):
     def __init__(self, page, tab, shots: Path, prefix: str):
         super().__init__(page, tab)
         self.shots, self.prefix = shots, prefix
+        self.seen: list[tuple[str, str]] = []
 
     def button(self, name: str) -> None:
+        self.seen.append((name, self.tp.status.content))  # what the status line said when the person pressed
         if name in ("Close", "Stop & save"):
             ui.shot(self.page, self.shots / f"{self.prefix}-before-{name.split()[0].lower()}.png")
         super().button(name)
@@ -106,6 +108,10 @@ def test_a_pick_and_place_demonstration_by_clicking(studio, page, shots, errors)
     person.demonstrate("pick_place/cube->red")
     _check_saved(studio, tp, person, before, "pick_place/cube->red")
     assert person.actions[:3] == ["Record", "click the cube", "Down"], person.actions
+    downs = [status for name, status in person.seen if name == "Down"]
+    assert "**cube**" in downs[0] and "**Close** to grasp" in downs[0], downs
+    # carrying the cube over the zone, the line says what comes next: lower it and open
+    assert "red zone" in downs[1] and "**Down** to lower the cube, **Open** to release it" in downs[1], downs
     assert not errors.lines, f"the server logged errors while recording and saving: {errors.lines}"
 
 

@@ -13,6 +13,7 @@ from studio.ui.reach import (
     SceneModel,
     down_height,
     min_jerk,
+    object_label,
     path_duration,
     path_targets,
     ray_triangles,
@@ -38,6 +39,10 @@ def test_objects_are_the_small_movable_bodies_not_the_robot_table_or_zones(pick_
     env, push = _scene("push", "panda", "push/blue-backward")
     assert push.objects == {"obj_red", "obj_blue"}
     env.close()
+
+
+def test_the_status_line_names_objects_and_zones_as_a_person_does():
+    assert [object_label(b) for b in ("obj_cube", "target_red", "table")] == ["cube", "red zone", "table"]
 
 
 def test_a_ray_down_meets_the_top_of_each_object_and_the_table_elsewhere(pick_place):

@@ -539,7 +539,17 @@ class TeleopPanel:
         point = model.object_positions(poses)[hit.body] if hit.is_object else hit.point
         self.reach(np.array([point[0], point[1], start[2]]))
         what = f"the **{object_label(hit.body)}**" if hit.is_object else f"the {object_label(hit.body)}"
-        self.status.content = f"Moving over {what} at ({point[0]:.3f}, {point[1]:.3f}). **Down** to descend, **Close** to grasp."
+        frame = self.client.latest_pose() if self.client is not None else None
+        held = None
+        if frame is not None and self._rules is not None:
+            ee = np.asarray(frame.ee_pos, dtype=np.float64)
+            held = self._rules.held(ee, float(frame.gripper), model.object_positions(poses))
+        then = (
+            f"**Down** to lower the {object_label(held)}, **Open** to release it."
+            if held
+            else "**Down** to descend, **Close** to grasp."
+        )
+        self.status.content = f"Moving over {what} at ({point[0]:.3f}, {point[1]:.3f}). {then}"
 
     def move_height(self, which: str) -> None:
         """Down: to the grasp height of the object below, the place height of one held, or just above the table;
