@@ -51,12 +51,18 @@ def wait_until(
 #: Where a button's centre is, whether it is visible and enabled, and whether it is on top there (what a press at
 #: that point reaches): read with one evaluation, which needs no drawn frame.
 _BUTTON_AT = """(el) => {
-  const r = el.getBoundingClientRect();
-  if (r.bottom < 0 || r.top > innerHeight) el.scrollIntoView({block: 'center'});
-  const b = el.getBoundingClientRect(), x = b.left + b.width / 2, y = b.top + b.height / 2;
-  const top = document.elementFromPoint(x, y);
-  const shown = b.width > 0 && b.height > 0 && getComputedStyle(el).visibility !== 'hidden';
-  return {x, y, w: b.width, h: b.height, ready: shown && !el.disabled && !!top && el.contains(top)};
+  const at = () => {
+    const b = el.getBoundingClientRect(), x = b.left + b.width / 2, y = b.top + b.height / 2;
+    const top = document.elementFromPoint(x, y);
+    return {b, x, y, onTop: !!top && el.contains(top)};
+  };
+  let p = at();
+  if (!p.onTop) {  // scrolled out of its panel or the window: bring it to the middle, at once (no frame needed)
+    el.scrollIntoView({block: 'center', inline: 'nearest', behavior: 'instant'});
+    p = at();
+  }
+  const shown = p.b.width > 0 && p.b.height > 0 && getComputedStyle(el).visibility !== 'hidden';
+  return {x: p.x, y: p.y, w: p.b.width, h: p.b.height, ready: shown && !el.disabled && p.onTop};
 }"""
 #: Whether the page draws: an animation frame within 2 s, else how long it waited.
 _FRAME_PROBE = """() => new Promise((done) => {
