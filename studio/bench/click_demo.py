@@ -120,11 +120,16 @@ def click_button(page, locator, wait: float = 20.0) -> str | None:
     try:
         locator.click(timeout=wait * 1000)
         return None
-    except PlaywrightTimeout:
+    except PlaywrightTimeout as e:
+        log = [line.strip(" -") for line in str(e).splitlines() if line.strip(" -")]
+        # what Playwright last said of the element when it gave up ("element is not stable", ...)
+        waited = next(
+            (line for line in reversed(log) if "element" in line), log[-1] if log else "no call log"
+        )
         frames = str(page.evaluate(_FRAME_PROBE))
         load = _browser_load()
     press(page, locator)
-    return f"{frames}; {load}"
+    return f"Playwright: {waited}; {frames}; {load}"
 
 
 def screen_point(page, client, point: np.ndarray) -> tuple[float, float]:

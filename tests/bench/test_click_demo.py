@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from studio.bench.click_demo import press
+from studio.bench.click_demo import click_button, press
 from studio.bench.ui import CHROMIUM, CHROMIUM_ARGS
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(120)]
@@ -22,6 +22,7 @@ PAGE = """
 <button id="covered" onclick="hit('covered')">covered</button>
 <button id="disabled" disabled>disabled</button>
 <button id="twice" ondblclick="hit('twice')">twice</button>
+<button id="late" disabled onclick="hit('late')">late</button>
 <div style="position:fixed; left:0; top:0; width:90px; height:40px"></div>
 """
 
@@ -57,3 +58,12 @@ def test_a_covered_or_disabled_button_is_refused_and_not_pressed(page):
 def test_two_presses_make_a_double_click(page):
     press(page, page.locator("#twice"), count=2)
     assert page.evaluate("hits.twice") == 1
+
+
+def test_a_click_playwright_cannot_make_in_time_is_pressed_and_says_what_playwright_waited_for(page):
+    page.evaluate("setTimeout(() => { document.getElementById('late').disabled = false; }, 2500)")
+    said = click_button(page, page.locator("#late"), wait=1)
+    assert said is not None and said.startswith("Playwright: element is not enabled;"), said
+    assert page.evaluate("hits.late") == 1
+    assert click_button(page, page.locator("#late"), wait=1) is None  # enabled now: Playwright's own click
+    assert page.evaluate("hits.late") == 2
