@@ -171,9 +171,10 @@ def test_fork_a_failed_rollout_correct_it_and_lose_nothing_when_the_worker_dies(
         lambda: ui.teleop_state(tab),
     )
     resumed = tp.client.state.wait_until(lambda s: s.recorded_steps > 0, 10).recorded_steps
-    # Draft chunks leave every 0.1 s (5 ticks): at most that and the chunk in flight are lost, and a tick the dead
-    # worker published no pose of can only be one sent in the same instant.
-    assert held_steps - 10 <= resumed <= held_steps + 1, (held_steps, resumed)
+    # Draft chunks leave every 0.1 s (5 ticks): at most that and the chunk in flight are lost. The other way, the
+    # last chunk that arrived can hold ticks whose pose frames the kill dropped in flight (a fresh clone's run kept
+    # 2 ticks more than the last pose seen), at most one chunk's worth.
+    assert held_steps - 10 <= resumed <= held_steps + 5, (held_steps, resumed)
     # The restarted worker's session state can arrive before its first pose frame.
     pose = tp.client.poses.wait_until(lambda f: True, 10)
     assert pose is not None, f"no pose from the restarted worker; {ui.teleop_state(tab)}"
