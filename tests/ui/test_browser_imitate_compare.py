@@ -131,12 +131,17 @@ def element_pixels(locator) -> np.ndarray:
     from PIL import Image
 
     # Scrolled into view and cut out of a page screenshot: a locator screenshot waits for a page that stands
-    # still, which software WebGL on a loaded machine may not give within a minute.
-    locator.evaluate("e => e.scrollIntoView({block: 'center'})", timeout=60_000)
-    box = locator.bounding_box(timeout=60_000)
-    assert box and box["width"] > 0 and box["height"] > 0, f"the element is not drawn: {box}"
-    shot = locator.page.screenshot(clip=box, timeout=60_000)
-    return np.asarray(Image.open(io.BytesIO(shot)).convert("RGB"))
+    # still, which software WebGL on a loaded machine may not give within a minute. The cut is kept only if the
+    # element had the same box after the screenshot: a status line added above it meanwhile (a rollout ending)
+    # moved it, and the cut showed the button below instead.
+    for _ in range(5):
+        locator.evaluate("e => e.scrollIntoView({block: 'center'})", timeout=60_000)
+        box = locator.bounding_box(timeout=60_000)
+        assert box and box["width"] > 0 and box["height"] > 0, f"the element is not drawn: {box}"
+        shot = locator.page.screenshot(clip=box, timeout=60_000)
+        if locator.bounding_box(timeout=60_000) == box:
+            return np.asarray(Image.open(io.BytesIO(shot)).convert("RGB"))
+    raise AssertionError(f"{locator} kept moving: no screenshot of it in 5 tries")
 
 
 def expert_image(page):
