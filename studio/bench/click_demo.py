@@ -113,8 +113,8 @@ def _browser_load() -> str:
 
 def click_button(page, locator, wait: float = 20.0) -> str | None:
     """Click ``locator`` with Playwright's checks; when they cannot pass within ``wait`` seconds, :func:`press` it
-    instead. Returns None, or what the page's frames and the browser's processes were doing when the checks did
-    not pass (for a warning)."""
+    instead and warn (so that the run's summary shows it). Returns None, or what Playwright waited for, the page's
+    frames and the browser's processes when the checks did not pass (the warning's text)."""
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
     try:
@@ -129,7 +129,11 @@ def click_button(page, locator, wait: float = 20.0) -> str | None:
         frames = str(page.evaluate(_FRAME_PROBE))
         load = _browser_load()
     press(page, locator)
-    return f"Playwright: {waited}; {frames}; {load}"
+    said = f"Playwright: {waited}; {frames}; {load}"
+    warnings.warn(
+        f"{locator}: Playwright's checks did not pass in {wait:g} s ({said}); pressed it", stacklevel=3
+    )
+    return said
 
 
 def screen_point(page, client, point: np.ndarray) -> tuple[float, float]:
@@ -167,11 +171,7 @@ class ClickPerson:
         """Click a panel button as a person does: once the button is visible, still, enabled and on top (a forced
         click skips those checks and can land on whatever the panel just moved there)."""
         self.actions.append(name)
-        stalled = click_button(self.page, self.page.get_by_role("button", name=name, exact=True))
-        if stalled is not None:
-            warnings.warn(
-                f"{name}: Playwright's checks did not pass in 20 s ({stalled}); pressed it", stacklevel=2
-            )
+        click_button(self.page, self.page.get_by_role("button", name=name, exact=True))
 
     def move(self, name: str) -> np.ndarray:
         """Click a motion button (Down, Up, a nudge); returns where the app sends the gripper once it took it."""
