@@ -8,7 +8,8 @@ combinatorial pairing of the paper) and yields the "training sample" dicts of th
 * ``agent_frames`` uint8 (M, 3, H, W): evenly spaced, first and last included;
 * ``path`` float32 (P, 4): the agent's end-effector position in the external camera frame (x right,
   y down, z forward, metres) and its gripper state, binary as in the paper (1 where the recorded command is
-  above :data:`GRIPPER_CLOSED_ABOVE`, else 0), at P evenly spaced control steps over the whole episode;
+  above :data:`GRIPPER_CLOSED_ABOVE`, else 0; ``gripper_labels="recorded"`` keeps the command itself), at P evenly
+  spaced control steps over the whole episode;
 * ``K`` float32 (3, 3) intrinsics at the sample's (H, W); ``T_world_cam`` float32 (4, 4);
 * ``task_index``, ``expert_index``, ``agent_index`` int64.
 
@@ -79,6 +80,11 @@ GRIPPER_CLOSED_ABOVE = 0.5
 """A recorded gripper command above this is a closed gripper in the training labels. Meta-World's experts that do
 not grasp (button presses, pushes) record exactly 0.5 — effort 0 — which is open; labels of 0.5 would leave the
 model to predict a probability at the controller's threshold, a coin flip between opening and closing."""
+
+GRIPPER_LABELS = ("binary", "recorded")
+"""How a path's gripper column is made: ``binary`` (the paper's: closed above :data:`GRIPPER_CLOSED_ABOVE`) or
+``recorded`` (the recorded command itself, 0..1; Meta-World's effort-0 experts then give 0.5). The shipped
+Meta-World policy was trained on ``recorded`` labels, before they were made binary (docs/experiments.md)."""
 
 SAME_POOL_SCENES = frozenset({"metaworld"})
 """Scenes whose training pairs take both sides from the stored ``expert`` demonstrations (the paper's Meta-World)."""
@@ -351,11 +357,15 @@ class PairDataset:
         agent_embodiments: Sequence[str] | None = None,
         sources: Sequence[str] = DEFAULT_SOURCES,
         progress: bool = False,
+        gripper_labels: str = "binary",
     ) -> None:
         if split not in SPLITS:
             raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
         if n_expert < 2 or n_agent < 2 or path_points < 2:
             raise ValueError("n_expert, n_agent and path_points must be at least 2 (first and last are kept)")
+        if gripper_labels not in GRIPPER_LABELS:
+            raise ValueError(f"gripper_labels must be one of {GRIPPER_LABELS}, got {gripper_labels!r}")
+        self.gripper_labels = gripper_labels
         self._store = root if isinstance(root, EpisodeStore) else EpisodeStore(root)
         self._episodes_dir = self._store.episodes_dir
         self.spec = _spec_of(scene, split_spec)
@@ -484,7 +494,8 @@ class PairDataset:
         meta = self.episodes[agent_index]
         _, _, arrays = read_arrays(self._episodes_dir / meta.id)
         steps = even_indices(meta.num_steps, self.path_points)
-        closed = arrays["gripper_cmd"][steps, None] > GRIPPER_CLOSED_ABOVE
+        command = arrays["gripper_cmd"][steps, None]
+        closed = command > GRIPPER_CLOSED_ABOVE if self.gripper_labels == "binary" else command
         return np.concatenate([arrays["ee_pos_cam"][steps], closed], axis=1).astype(np.float32)
 
     def _load_camera(self, episode_index: int) -> tuple[np.ndarray, np.ndarray]:
@@ -493,7 +504,8 @@ class PairDataset:
         return model.K.astype(np.float32), model.T_world_cam.astype(np.float32)
 
     def path(self, agent_index: int) -> np.ndarray:
-        """(P, 4) float32: camera-frame end-effector xyz and binary gripper state at P evenly spaced steps."""
+        """(P, 4) float32: camera-frame end-effector xyz and gripper state (``gripper_labels``) at P evenly spaced
+        steps."""
         return self._paths[agent_index]
 
     def camera(self, episode_index: int) -> tuple[np.ndarray, np.ndarray]:

@@ -182,6 +182,11 @@ class ModelConfig:
 FREEZABLE = ("encoder", "action_model", "world_model", "temporal_pool", "head", "demo_task_head")
 
 
+PLANNING_FIELDS = ("guidance", "guidance_gate")
+"""``ModelConfig`` fields that change only how a trained model is planned (set by ``studio export-policy``): a run
+started from a policy file (``--init``) takes them from its own configuration, not from the file."""
+
+
 @dataclass
 class TrainConfig:
     """Optimisation, losses, augmentation and bookkeeping of a training run.
@@ -207,6 +212,11 @@ class TrainConfig:
         demo_task_labels: what that loss names: "task" (the training task) or "parts" (its object and its target,
             each by its own classifier; tabletop scenes only). See ``demo_task``.
         sdtw_gamma, sdtw_normalize, dense_points, gripper_weight: the waypoint loss (see ``losses``).
+        endpoint_weight: weight of a squared-distance loss between the last waypoint of each set and the path's
+            end (``losses.endpoint_loss``; 0 = off, the paper's loss). Not in the paper: the soft-DTW sum counts
+            the end as one of ~100 aligned cells, and a plan ending a few centimetres short costs it little.
+        gripper_labels: the paths' gripper column (``training_view.GRIPPER_LABELS``): ``binary`` as in the paper,
+            or ``recorded`` commands, which the shipped Meta-World policy was trained on.
         crop, translate, scale, hflip, vflip, brightness, contrast, saturation, hue: augmentation ranges
             (fractions of the image size for crop/translate; scale is a zoom range; flips are probabilities).
         expert_hflip: probability of mirroring an expert video alone, its agent clips not. Our tasks are named
@@ -264,6 +274,8 @@ class TrainConfig:
     sdtw_normalize: bool = False
     dense_points: int = 60
     gripper_weight: float = 0.2
+    endpoint_weight: float = 0.0
+    gripper_labels: Literal["binary", "recorded"] = "binary"
     crop: float = 0.05
     translate: float = 0.05
     scale: tuple[float, float] = (0.95, 1.05)
@@ -334,6 +346,10 @@ class TrainConfig:
             raise ValueError(f"demo_task_labels must be 'task' or 'parts', got {self.demo_task_labels!r}")
         if self.sdtw_gamma <= 0:
             raise ValueError(f"sdtw_gamma must be positive, got {self.sdtw_gamma}")
+        if self.endpoint_weight < 0:
+            raise ValueError(f"endpoint_weight must be >= 0, got {self.endpoint_weight}")
+        if self.gripper_labels not in ("binary", "recorded"):
+            raise ValueError(f"gripper_labels must be 'binary' or 'recorded', got {self.gripper_labels!r}")
         if not 0.0 <= self.alpha_warmup <= 1.0:
             raise ValueError(f"alpha_warmup must be a fraction in [0, 1], got {self.alpha_warmup}")
         if not 0.0 <= self.aug_warmup <= 1.0:

@@ -4,6 +4,7 @@
   pose (position + gripper) and visits the n waypoints; it is sampled at ``dense_points`` instants evenly spaced
   in "segment time" (each segment takes equal time, the reference code's 60 // n points per segment), and every
   sample carries the gripper value of its segment's destination waypoint.
+* ``endpoint_loss``: squared distance from each set's last waypoint to the path's end (opt-in, not in the paper).
 * ``waypoint_loss``: soft-DTW (γ = 1e-3 as in the reference; raw value by default as in the paper, the
   divergence with ``normalize=True``) between each densified set and the dense ground-truth path (P = 50 points,
   camera-frame metres + gripper), under the squared Euclidean cost of (x, y, z, w·g) with w = ``gripper_weight``;
@@ -77,6 +78,22 @@ def waypoint_loss(
     values = fn(pred, gt, cfg.sdtw_gamma, None, lengths).reshape(max_waypoints, b)
     per_set = values.mean(dim=1)
     return per_set.mean(), per_set.detach()
+
+
+def endpoint_loss(
+    position: torch.Tensor, path: torch.Tensor, max_waypoints: int, path_lengths: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Mean squared distance (m²) from the last waypoint of every set to the path's end.
+
+    ``position`` (B, R, 3) holds the stacked sets' rows (set n ends at row n(n+1)/2 − 1); ``path`` (B, P, ≥3) the
+    ground truth, whose end is its last row or, with ``path_lengths``, row ``length − 1``. Not in the paper
+    (``TrainConfig.endpoint_weight``): soft-DTW aligns the last dense point with the path's end, but as one cell of
+    a sum over the whole alignment, so an end a few centimetres off costs it little.
+    """
+    b = position.shape[0]
+    lasts = torch.tensor([n * (n + 1) // 2 - 1 for n in range(1, max_waypoints + 1)], device=position.device)
+    ends = path[:, -1, :3] if path_lengths is None else path[torch.arange(b), path_lengths.long() - 1, :3]
+    return (position[:, lasts].float() - ends[:, None].float()).square().sum(-1).mean()
 
 
 def world_model_loss(pooled: torch.Tensor, target_pooled: torch.Tensor) -> torch.Tensor:

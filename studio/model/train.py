@@ -47,11 +47,11 @@ import torch.distributed as dist
 from studio.model.augment import augment_batch
 from studio.model.batching import Batch, BatchPlan, PairSource, collate_pairs, expert_indices_of
 from studio.model.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
-from studio.model.config import ModelConfig, RunConfig, TrainConfig, steps_for
+from studio.model.config import PLANNING_FIELDS, ModelConfig, RunConfig, TrainConfig, steps_for
 from studio.model.demo_task import demo_task_loss, label_table
 from studio.model.guidance import drop_demonstrations
 from studio.model.losses import alpha as alpha_at
-from studio.model.losses import waypoint_errors, waypoint_loss, world_model_loss
+from studio.model.losses import endpoint_loss, waypoint_errors, waypoint_loss, world_model_loss
 from studio.model.osvi_wm import OSVIWM
 from studio.model.pretrain_encoder import is_pretrained_encoder, load_pretrained_encoder
 from studio.model.reversal import reverse_pairs
@@ -154,6 +154,10 @@ def compute_losses(
     )
     loss = loss_sdtw
     parts = {"loss_sdtw": float(loss_sdtw.detach()), "alpha": a}
+    if cfg.endpoint_weight > 0:
+        loss_end = endpoint_loss(decoded["position"], batch.path, core.cfg.max_waypoints)
+        loss = loss + cfg.endpoint_weight * loss_end
+        parts["loss_endpoint"] = float(loss_end.detach())
     if out.demo_task_logits is not None and cfg.demo_task_weight > 0:
         loss_task, right = demo_task_loss(
             out.demo_task_logits, batch.expert_tasks, core.cfg.demo_task_groups, core.cfg.demo_task_table
@@ -472,6 +476,9 @@ def _load_init(model: OSVIWM, run: RunConfig, init: str | Path, device: torch.de
     if new_wm:
         saved["world_model"] = True
     untrained = (("demo_task_head.",) if new_head else ()) + (("world_model.",) if new_wm else ())
+    # How a policy file is planned (guidance, its gate) is set when it is exported, not by its weights: a run may
+    # start from a guided policy without repeating them.
+    saved.update({k: current[k] for k in PLANNING_FIELDS})
     diffs = _config_differences({"model": saved}, {"model": current, "train": {}})
     if diffs:
         raise CheckpointMismatch(f"{init} has another model configuration ({'; '.join(diffs)})")

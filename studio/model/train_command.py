@@ -121,6 +121,7 @@ def open_splits(root: str, run, scene: str, progress: bool = False):
         n_agent=run.model.n_agent_frames,
         seed=run.train.seed,
         progress=progress,
+        gripper_labels=run.train.gripper_labels,
         **_pair_selection(run, scene),
     )
     return PairDataset(root, "train", **kw), PairDataset(root, "val", **kw)

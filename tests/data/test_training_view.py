@@ -182,6 +182,24 @@ def test_gripper_labels_are_binary_and_an_effort_of_zero_is_open(tmp_path):
         assert (labels[: half - 1] == 0).all() and (labels[half + 1 :] == 1).all()
 
 
+def test_recorded_gripper_labels_keep_the_command_and_unknown_labels_are_refused(tmp_path):
+    """``gripper_labels="recorded"`` gives the recorded command itself (0.5 stays 0.5): what the shipped Meta-World
+    policy was trained on; a label rule that does not exist fails with the choices."""
+    s = EpisodeStore(tmp_path)
+    for seed, task in enumerate((T1, T2, T3)):
+        s.add_episode(make_recording(task=task, robot="sawyer", seed=seed), role="expert", source="scripted")
+        rec = make_recording(task=task, robot="panda", seed=10 + seed)
+        steps = len(rec.arrays["gripper_cmd"])
+        rec.arrays["gripper_cmd"] = np.where(np.arange(steps) < steps // 2, 0.5, 0.8)
+        s.add_episode(rec, role="agent", source="scripted")
+    spec = SplitSpec(scene="pick_place", train=(T1, T2), test=(T3,))
+    ds = PairDataset(s, split="train", image_size=SIZE, split_spec=spec, gripper_labels="recorded")
+    for i in range(len(ds)):
+        np.testing.assert_allclose(np.unique(ds[i]["path"][:, 3]), [0.5, 0.8], rtol=1e-6)
+    with pytest.raises(ValueError, match="gripper_labels must be one of"):
+        PairDataset(s, split="train", image_size=SIZE, split_spec=spec, gripper_labels="soft")
+
+
 def test_frames_match_store_at_training_size(store):
     ds = _dataset(store)
     e = int(ds.pairs[0, 0])

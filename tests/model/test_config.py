@@ -59,6 +59,10 @@ def test_invalid_values_are_rejected_with_the_field_named():
         TrainConfig(mixup_min=0.0)
     with pytest.raises(ValueError, match="noise_std"):
         DecoderConfig(noise_std=-1)
+    with pytest.raises(ValueError, match="endpoint_weight"):
+        TrainConfig(endpoint_weight=-1.0)
+    with pytest.raises(ValueError, match="gripper_labels"):
+        TrainConfig(gripper_labels="soft")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="unknown TrainConfig"):
         RunConfig.from_dict({"train": {"bogus": 1}})
 

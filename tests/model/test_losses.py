@@ -8,7 +8,14 @@ import pytest
 import torch
 
 from studio.model.config import TrainConfig
-from studio.model.losses import alpha, densify_waypoints, waypoint_errors, waypoint_loss, world_model_loss
+from studio.model.losses import (
+    alpha,
+    densify_waypoints,
+    endpoint_loss,
+    waypoint_errors,
+    waypoint_loss,
+    world_model_loss,
+)
 
 torch.set_num_threads(1)
 
@@ -84,3 +91,27 @@ def test_waypoint_errors():
     err = waypoint_errors(pos, path, 5)
     assert err["final"].item() == pytest.approx(0.1)
     assert err["path"].item() < 0.02
+
+
+def test_the_endpoint_loss_is_the_mean_squared_distance_of_each_sets_last_waypoint_to_the_path_end():
+    path = torch.zeros(2, 7, 4)
+    path[:, :, 0] = torch.linspace(0.0, 0.6, 7)  # ends at x = 0.6
+    rows = torch.zeros(2, 15, 3)
+    lasts = [0, 2, 5, 9, 14]
+    rows[:, lasts, 0] = 0.6
+    assert float(endpoint_loss(rows, path, 5)) == 0.0
+    rows[:, 3, 1] = 5.0  # a row that ends no set: not counted
+    assert float(endpoint_loss(rows, path, 5)) == 0.0
+    rows[0, 14, 2] = 0.1  # set 5 of sample 0 ends 10 cm off: 0.01 m² over 2 samples x 5 sets
+    assert math.isclose(float(endpoint_loss(rows, path, 5)), 0.01 / 10, rel_tol=1e-6)
+
+
+def test_the_endpoint_loss_reads_a_padded_paths_end_at_its_length_and_moves_only_the_last_rows():
+    path = torch.zeros(1, 6, 4)
+    path[0, :4, 1] = torch.tensor([0.0, 0.1, 0.2, 0.3])  # true length 4; the padding (zeros) is not the end
+    rows = torch.zeros(1, 3, 3, requires_grad=True)  # sets 1 and 2: rows 0 and 2 end them
+    loss = endpoint_loss(rows, path, 2, path_lengths=torch.tensor([4]))
+    assert math.isclose(float(loss), 0.09, rel_tol=1e-6)
+    loss.backward()
+    assert rows.grad is not None
+    assert float(rows.grad[0, 1].abs().sum()) == 0.0 and float(rows.grad[0, 0].abs().sum()) > 0

@@ -192,6 +192,12 @@ def test_a_run_can_start_from_another_checkpoints_weights(tmp_path):
     own_init = OSVIWM(second.model).state_dict()
     assert not all(torch.allclose(own_init[k], after[k], atol=1e-6) for k in weights)
     assert json.loads((tmp_path / "b" / "config.json").read_text())["init"].endswith("last.pt")
+    # A guided policy file (guidance and gate set at export) starts a run that does not repeat them.
+    ckpt = load_checkpoint(tmp_path / "a" / "last.pt")
+    ckpt["config"]["model"].update(guidance=5.0, guidance_gate=1.2)
+    torch.save(ckpt, tmp_path / "guided.pt")
+    train(second, SyntheticPairs(), None, tmp_path / "g", show_progress=False, init=tmp_path / "guided.pt")
+    assert load_checkpoint(tmp_path / "g" / "last.pt")["config"]["model"]["guidance"] == 1.0
     other = first.with_overrides(["model.head_hidden=8"])
     with pytest.raises(CheckpointMismatch, match="head_hidden"):
         train(
@@ -368,6 +374,28 @@ def test_augmentation_starts_after_the_clean_warm_up():
     clean = loss(0, None)
     assert loss(4, torch.Generator().manual_seed(1)) == clean  # inside the warm-up: the pairs as recorded
     assert loss(5, torch.Generator().manual_seed(1)) != clean  # from half-way on: augmented
+
+
+def test_the_endpoint_loss_adds_to_the_total_with_its_weight_and_is_reported():
+    from studio.model.batching import collate_pairs
+    from studio.model.losses import endpoint_loss
+    from studio.model.osvi_wm import OSVIWM
+    from studio.model.train import compute_losses
+
+    torch.manual_seed(0)
+    runs = {w: tiny_run_config(endpoint_weight=w, wm_loss=False) for w in (0.0, 30.0)}
+    core = OSVIWM(runs[0.0].model).eval()
+    data = SyntheticPairs(n_tasks=2, episodes_per_task=2)
+    batch = collate_pairs([data[i] for i in (0, 1, 4, 5)], runs[0.0].model.image_size)
+    off = compute_losses(core, core, batch, runs[0.0], 0, 10, None)
+    on = compute_losses(core, core, batch, runs[30.0], 0, 10, None)
+    assert "loss_endpoint" not in off[1] and on[1]["loss_sdtw"] == off[1]["loss_sdtw"]
+    with torch.no_grad():
+        out = core(batch.expert_frames, batch.agent_frames, batch.expert_ids)
+        position = core.decode_waypoints(out.waypoints.float(), batch.K)["position"]
+        expected = float(endpoint_loss(position, batch.path, core.cfg.max_waypoints))
+    assert on[1]["loss_endpoint"] == pytest.approx(expected, rel=1e-5) and expected > 0
+    assert float(on[0]) == pytest.approx(float(off[0]) + 30.0 * expected, rel=1e-5)
 
 
 @pytest.mark.slow
