@@ -12,10 +12,11 @@ trains one stage (:func:`stage_config`); ``studio quickstart`` runs the pick-and
 * ``pick-place-quick`` — what ``studio quickstart`` trains: ``pick-place``'s stages at 48×64 input, 1300 + 900
   steps without 𝒲 and 600 with it.
 * ``push`` — the shipped ``push-cpu``: ``base`` without the world model, then ``grow`` with the encoder fixed.
-* ``metaworld`` — the shipped ``metaworld-cpu`` at 96×96: ``base`` without the world model; ``grow`` with the
-  encoder and π fixed; ``guide`` with the encoder fixed and demonstration dropout, so that the policy can be
-  planned with guidance (``studio export-policy --guidance``). The shipped file's ``guide`` stage started from
-  the float16 export of ``grow``'s best checkpoint; the recipe starts it from the checkpoint itself.
+* ``metaworld`` — the shipped ``metaworld-cpu`` at 96×96, on the recorded gripper commands: ``base`` without the
+  world model; ``grow`` with the encoder and π fixed; ``guide`` with the encoder fixed and demonstration dropout,
+  so that the policy can be planned with guidance (``studio export-policy --guidance``); ``end`` continues
+  ``guide`` with a loss on each plan's end (``train.endpoint_weight``). The shipped file's ``guide`` and ``end``
+  stages started from the float16 exports of the stage before; the recipe starts them from the checkpoints.
 
 Why each setting is what it is: docs/experiments.md. The shipped policies' JSON files list the commands they
 were trained with; each recipe is those commands (tests/model/test_recipes.py holds them to it).
@@ -111,6 +112,9 @@ _QUICK = tuple(
     )
 )
 _METAWORLD_SIZE = {"image_size": (96, 96)}
+# The shipped Meta-World policy learnt the recorded gripper commands (0.5 for experts that never grasp), which
+# make its button presses run the grasp branch's centring; binary labels, as the paper's, did worse (experiments.md).
+_RECORDED = {"gripper_labels": "recorded"}
 
 RECIPES: dict[str, Recipe] = {
     r.name: r
@@ -141,14 +145,21 @@ RECIPES: dict[str, Recipe] = {
                     2200,
                     0,
                     _frozen({**_METAWORLD_SIZE, **_NO_WORLD_MODEL}),
-                    _frozen({"val_every": 550}),
+                    _frozen({"val_every": 550, **_RECORDED}),
                 ),
                 Stage(
                     "grow",
                     500,
                     2,
                     _frozen(_METAWORLD_SIZE),
-                    _frozen({"val_every": 250, "aug_warmup": 0.0, "freeze": ("encoder", "action_model")}),
+                    _frozen(
+                        {
+                            "val_every": 250,
+                            "aug_warmup": 0.0,
+                            "freeze": ("encoder", "action_model"),
+                            **_RECORDED,
+                        }
+                    ),
                     init_from="base",
                 ),
                 Stage(
@@ -163,9 +174,29 @@ RECIPES: dict[str, Recipe] = {
                             "freeze": ("encoder",),
                             "demo_dropout": 0.2,
                             "lr_max": 3e-4,
+                            **_RECORDED,
                         }
                     ),
                     init_from="grow",
+                ),
+                Stage(
+                    "end",
+                    500,
+                    7,
+                    _frozen(_METAWORLD_SIZE),
+                    _frozen(
+                        {
+                            "val_every": 250,
+                            "aug_warmup": 0.0,
+                            "freeze": ("encoder",),
+                            "demo_dropout": 0.2,
+                            "lr_max": 1.5e-4,
+                            "endpoint_weight": 20.0,
+                            "precision": "bf16",
+                            **_RECORDED,
+                        }
+                    ),
+                    init_from="guide",
                 ),
             ),
         ),

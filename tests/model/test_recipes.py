@@ -11,7 +11,7 @@ import pytest
 from synthetic_pairs import SyntheticPairs
 
 from studio.model import train_command
-from studio.model.config import preset
+from studio.model.config import PLANNING_FIELDS, ModelConfig, preset
 from studio.model.recipes import RECIPES, recipe, stage_config
 
 POLICIES = Path(train_command.__file__).resolve().parents[1] / "policies"
@@ -37,7 +37,9 @@ def test_each_stage_is_the_command_the_shipped_policy_was_trained_with(name):
         args = _parse(command)
         scene = args.scene or "pick_place"
         shipped = preset(args.config, scene).with_overrides(args.set)
-        shipped = shipped.with_changes(train={"max_steps": args.steps, "seed": args.seed})
+        # How a guided policy file it started from is planned is set at export, not by the training command.
+        planning = {k: getattr(ModelConfig(), k) for k in PLANNING_FIELDS}
+        shipped = shipped.with_changes(model=planning, train={"max_steps": args.steps, "seed": args.seed})
         run, same = stage_config(name, stage.name)
         assert same == stage and recipe(name).scene == scene
         assert run.with_changes(train={"max_steps": stage.steps, "seed": stage.seed_offset}) == shipped, stage
