@@ -28,9 +28,11 @@ DEMONSTRATORS = {
 }
 
 
-#: Of the ten button-press rollouts (seeds 300-309) of the Meta-World policy (eight succeed); its JSON file gives
-#: the rate measured over hundreds of rollouts (77 % without re-plans), of which six in ten is far below.
-MIN_BUTTON_PRESSES = 6
+#: Of the twenty button-press rollouts (seeds 300-319, drawing on ten demonstrations) of the Meta-World policy (11
+#: succeed; 12 for the policy shipped before it). Which demonstration and which scenes move it a lot: one
+#: demonstration alone gave 5 to 10 of ten scenes, and 100 rollouts on 20 demonstrations gave 80 % for both
+#: policies. The bound, eight of twenty, leaves room for that spread.
+MIN_BUTTON_PRESSES = 8
 
 
 def demonstrator_args(policy) -> list[str]:
@@ -166,7 +168,7 @@ def test_the_shipped_push_policy_pushes_the_demonstrated_box_backward(policy, tm
                 "--tasks",
                 task,
                 "--episodes",
-                "1",
+                "10",
                 "--seed",
                 "5",
                 "--data-dir",
@@ -200,8 +202,8 @@ def test_the_shipped_push_policy_pushes_the_demonstrated_box_backward(policy, tm
 
 @pytest.mark.parametrize("policy", METAWORLD, ids=lambda p: p.stem)
 def test_the_shipped_metaworld_policy_presses_the_held_out_button(policy, tmp_path):
-    """button-press, one of the four tasks held out of the 46 training tasks, from one scripted demonstration, run
-    as ``studio eval`` runs it (Sawyer, no re-plans): the button is pressed in most of ten scenes."""
+    """button-press, one of the four tasks held out of the 46 training tasks, from ten scripted demonstrations, run
+    as ``studio eval`` runs it (Sawyer, no re-plans): the button is pressed in a good part of twenty scenes."""
     from studio.eval.evaluation import evaluate
     from studio.model.planner import Planner
 
@@ -220,7 +222,7 @@ def test_the_shipped_metaworld_policy_presses_the_held_out_button(policy, tmp_pa
                 "--tasks",
                 task,
                 "--episodes",
-                "1",
+                "10",
                 "--seed",
                 "5",
                 "--data-dir",
@@ -230,6 +232,7 @@ def test_the_shipped_metaworld_policy_presses_the_held_out_button(policy, tmp_pa
         )
         == 0
     )
-    report = evaluate(str(policy), [task], 10, 300, replan=0, data_dir=tmp_path, progress=False)
+    report = evaluate(str(policy), [task], 20, 300, replan=0, data_dir=tmp_path, progress=False)
+    assert len({row.expert_episode_id for row in report.rows}) > 5, "many demonstrations are imitated"
     outcomes = [row.success for row in report.rows]
-    assert len(outcomes) == 10 and sum(outcomes) >= MIN_BUTTON_PRESSES, outcomes
+    assert len(outcomes) == 20 and sum(outcomes) >= MIN_BUTTON_PRESSES, outcomes
