@@ -115,6 +115,14 @@ _METAWORLD_SIZE = {"image_size": (96, 96)}
 # The shipped Meta-World policy learnt the recorded gripper commands (0.5 for experts that never grasp), which
 # make its button presses run the grasp branch's centring; binary labels, as the paper's, did worse (experiments.md).
 _RECORDED = {"gripper_labels": "recorded"}
+# The stages that train with demonstration dropout, the encoder fixed.
+_METAWORLD_GUIDE = {
+    "val_every": 250,
+    "aug_warmup": 0.0,
+    "freeze": ("encoder",),
+    "demo_dropout": 0.2,
+    **_RECORDED,
+}
 
 RECIPES: dict[str, Recipe] = {
     r.name: r
@@ -167,16 +175,7 @@ RECIPES: dict[str, Recipe] = {
                     750,
                     4,
                     _frozen(_METAWORLD_SIZE),
-                    _frozen(
-                        {
-                            "val_every": 250,
-                            "aug_warmup": 0.0,
-                            "freeze": ("encoder",),
-                            "demo_dropout": 0.2,
-                            "lr_max": 3e-4,
-                            **_RECORDED,
-                        }
-                    ),
+                    _frozen({**_METAWORLD_GUIDE, "lr_max": 3e-4}),
                     init_from="grow",
                 ),
                 Stage(
@@ -184,17 +183,9 @@ RECIPES: dict[str, Recipe] = {
                     500,
                     7,
                     _frozen(_METAWORLD_SIZE),
+                    # the guide stage's settings at half its learning rate, with the loss on each plan's end
                     _frozen(
-                        {
-                            "val_every": 250,
-                            "aug_warmup": 0.0,
-                            "freeze": ("encoder",),
-                            "demo_dropout": 0.2,
-                            "lr_max": 1.5e-4,
-                            "endpoint_weight": 20.0,
-                            "precision": "bf16",
-                            **_RECORDED,
-                        }
+                        {**_METAWORLD_GUIDE, "lr_max": 1.5e-4, "endpoint_weight": 20.0, "precision": "bf16"}
                     ),
                     init_from="guide",
                 ),

@@ -159,16 +159,22 @@ def test_sample_contract(store):
         )
 
 
-def test_gripper_labels_are_binary_and_an_effort_of_zero_is_open(tmp_path):
-    """Meta-World's experts that do not grasp record exactly 0.5 (effort 0): the training label is open (0), and a
-    grasp's 0.8 is closed (1), as the paper's binary gripper state."""
-    s = EpisodeStore(tmp_path)
+def _store_with_half_idle_grippers(root) -> EpisodeStore:
+    """A store of three tasks whose agent episodes command 0.5 (effort 0) for their first half, then 0.8."""
+    s = EpisodeStore(root)
     for seed, task in enumerate((T1, T2, T3)):
         s.add_episode(make_recording(task=task, robot="sawyer", seed=seed), role="expert", source="scripted")
         rec = make_recording(task=task, robot="panda", seed=10 + seed)
         steps = len(rec.arrays["gripper_cmd"])
         rec.arrays["gripper_cmd"] = np.where(np.arange(steps) < steps // 2, 0.5, 0.8)
         s.add_episode(rec, role="agent", source="scripted")
+    return s
+
+
+def test_gripper_labels_are_binary_and_an_effort_of_zero_is_open(tmp_path):
+    """Meta-World's experts that do not grasp record exactly 0.5 (effort 0): the training label is open (0), and a
+    grasp's 0.8 is closed (1), as the paper's binary gripper state."""
+    s = _store_with_half_idle_grippers(tmp_path)
     ds = PairDataset(
         s,
         split="train",
@@ -185,13 +191,7 @@ def test_gripper_labels_are_binary_and_an_effort_of_zero_is_open(tmp_path):
 def test_recorded_gripper_labels_keep_the_command_and_unknown_labels_are_refused(tmp_path):
     """``gripper_labels="recorded"`` gives the recorded command itself (0.5 stays 0.5): what the shipped Meta-World
     policy was trained on; a label rule that does not exist fails with the choices."""
-    s = EpisodeStore(tmp_path)
-    for seed, task in enumerate((T1, T2, T3)):
-        s.add_episode(make_recording(task=task, robot="sawyer", seed=seed), role="expert", source="scripted")
-        rec = make_recording(task=task, robot="panda", seed=10 + seed)
-        steps = len(rec.arrays["gripper_cmd"])
-        rec.arrays["gripper_cmd"] = np.where(np.arange(steps) < steps // 2, 0.5, 0.8)
-        s.add_episode(rec, role="agent", source="scripted")
+    s = _store_with_half_idle_grippers(tmp_path)
     spec = SplitSpec(scene="pick_place", train=(T1, T2), test=(T3,))
     ds = PairDataset(s, split="train", image_size=SIZE, split_spec=spec, gripper_labels="recorded")
     for i in range(len(ds)):
