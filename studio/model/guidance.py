@@ -26,6 +26,13 @@ amplifies that part at planning time without changing the scenes the model was t
 without ``demo_dropout`` has never seen the null demonstration, so guidance is meaningful only for models
 trained with it.
 
+The guided branch (``studio export-policy --guided-from``): a policy file may carry a second set of weights for
+π, 𝒲 and the head, on the same encoder, which computes the gain and plans the demonstrations that reach the gate;
+the policy's own weights plan the others, from the demonstration alone. A later fine-tune can then make the plans
+that need no guidance more precise without touching the guided ones: on Meta-World a loss on each plan's end
+lifted the easy tasks and cost the guided door-unlock plans, and the policy shipped with both branches keeps each
+(docs/experiments.md).
+
 The gain's scale is the run's: ``studio export-policy --gate-percentile`` sets the gate from the run's own training
 demonstrations (the shipped Meta-World policy is gated at their 95th percentile). Off by default (g = 1, no gate).
 What guidance and the gate do on Meta-World, task by task, is measured in docs/experiments.md ("How far is

@@ -20,6 +20,10 @@ demonstration's; the latent trajectory returned is the demonstration's own, and 
 the guided one (what the scene alone suggests: how far the demonstration moved the plan is read from the two).
 With a world model, the demonstration's gain (``guidance.demonstration_gain``) is computed once per demonstration
 and returned; a gated policy (``ModelConfig.guidance_gate``) guides only demonstrations whose gain reaches the gate.
+
+A policy file with a guided branch (``studio export-policy --guided-from``; ``guidance``) holds a second set of
+weights for π, 𝒲 and the waypoint head, on the same encoder: the branch computes the gain, and plans (guided) the
+demonstrations that reach the gate; the policy's own weights plan the others, unguided. The frames are encoded once.
 """
 
 from __future__ import annotations
@@ -35,6 +39,12 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
+from studio.model.checkpoint import (
+    check_guided_branch,
+    guided_model_from_checkpoint,
+    load_checkpoint,
+    model_from_checkpoint,
+)
 from studio.model.geometry import camera_to_world, resize_intrinsics
 from studio.model.guidance import demonstration_gain, guide, null_demonstration
 from studio.model.osvi_wm import OSVIWM, waypoint_set
@@ -107,34 +117,49 @@ def _resize(frames: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 class Planner:
     """A trained OSVI-WM model ready to plan."""
 
-    def __init__(self, model: OSVIWM, device: str | torch.device = "cpu", precision: str = "fp32") -> None:
+    def __init__(
+        self,
+        model: OSVIWM,
+        device: str | torch.device = "cpu",
+        precision: str = "fp32",
+        guided_model: OSVIWM | None = None,
+    ) -> None:
+        """``guided_model``: the guided branch (module docstring): a network of ``model``'s architecture and
+        encoder weights, whose π, 𝒲 and head plan the demonstrations the gate guides; needs guidance and a gate."""
         if precision not in ("fp32", "bf16"):
             raise ValueError(f"precision must be 'fp32' or 'bf16', got {precision!r}")
         self.device = torch.device(device)
         self.precision = precision
         self.model = copy.deepcopy(model).to(self.device).eval()
+        self.guided_model: OSVIWM | None = None
+        if guided_model is not None:
+            check_guided_branch(model, guided_model)
+            self.guided_model = copy.deepcopy(guided_model).to(self.device).eval()
         self.model.encoder = self.model.encoder.fused_for_inference()
+        if self.guided_model is not None:
+            self.guided_model.encoder = self.model.encoder  # the same weights (checked): encode once
         self.cfg = model.cfg
         self.tasks: list[str] = []  # the training tasks (from the checkpoint), which the task head names
         self._class_names: list[list[str]] | None = None
         self._context_key: str | None = None
         self._context: KVCache | None = None
-        self._null_context: KVCache | None = None
+        self._guided_context: KVCache | None = None
+        self._null_contexts: dict[
+            bool, KVCache
+        ] = {}  # by branch: False the policy's own weights, True the guided
         self._gain: float | None = None
 
     @classmethod
     def load(
         cls, checkpoint: str | Path, device: str | torch.device = "cpu", precision: str = "fp32"
     ) -> Planner:
-        from studio.model.checkpoint import load_checkpoint, model_from_checkpoint
-
         ckpt = load_checkpoint(checkpoint, "cpu")
-        planner = cls(model_from_checkpoint(ckpt), device, precision)
+        planner = cls(model_from_checkpoint(ckpt), device, precision, guided_model_from_checkpoint(ckpt))
         planner.tasks = list(ckpt.get("tasks") or [])
         return planner
 
     def clear_cache(self) -> None:
-        self._context_key, self._context, self._gain = None, None, None
+        self._context_key, self._context, self._guided_context, self._gain = None, None, None, None
 
     @torch.inference_mode()
     def name_demonstration(self, expert_frames: np.ndarray | torch.Tensor) -> tuple[str, ...] | None:
@@ -168,30 +193,39 @@ class Planner:
             expert = expert[np.round(np.linspace(0, expert.shape[0] - 1, n)).astype(int)]
         return _resize(expert, _hw(self.cfg.image_size)).to(self.device)
 
-    def _null_context_for(self, expert: torch.Tensor) -> KVCache:
-        """π's cache of the null demonstration (made on the first call; it is the same for every demonstration)."""
-        if self._null_context is None:
+    def _branch(self, guided: bool) -> OSVIWM:
+        """The network that plans: the guided branch for a guided plan when the policy has one, else its own."""
+        return self.guided_model if guided and self.guided_model is not None else self.model
+
+    def _null_context_for(self, expert: torch.Tensor, guided: bool = False) -> KVCache:
+        """π's cache of the null demonstration in the branch ``_branch(guided)`` (made on the first call; it is the
+        same for every demonstration)."""
+        branch = self.guided_model is not None and guided
+        if branch not in self._null_contexts:
             with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
                 encoded = self.model.encode(null_demonstration(expert)).float()
-            self._null_context = self.model.action_model.context(encoded.unsqueeze(0))
-        return self._null_context
+            self._null_contexts[branch] = self._branch(branch).action_model.context(encoded.unsqueeze(0))
+        return self._null_contexts[branch]
 
     @torch.inference_mode()
     def demonstration_gain(self, expert_frames: np.ndarray | torch.Tensor) -> float:
-        """The demonstration's gain (``guidance.demonstration_gain``), as a plan with it would compute it; used to
-        set a policy's gate from the training demonstrations (``studio export-policy --gate-percentile``)."""
-        model = self.model
+        """The demonstration's gain (``guidance.demonstration_gain``), as a plan with it would compute it (by the
+        guided branch when there is one); used to set a policy's gate from the training demonstrations
+        (``studio export-policy --gate-percentile``)."""
+        judge = self._branch(True)
         expert = self._expert_input(expert_frames)
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
-            encoded = model.encode(expert).float()
-        context = model.action_model.context(encoded.unsqueeze(0))
-        return demonstration_gain(model, encoded, context, self._null_context_for(expert))
+            encoded = self.model.encode(expert).float()
+        context = judge.action_model.context(encoded.unsqueeze(0))
+        return demonstration_gain(judge, encoded, context, self._null_context_for(expert, True))
 
-    def _plan_without_demonstration(self, expert: torch.Tensor, agent_state: torch.Tensor) -> torch.Tensor:
-        """Raw rows planned from the null demonstration."""
-        model = self.model
-        _, states = model.rollout_from_context(self._null_context_for(expert), agent_state)
-        return model.predict_waypoints(model.pool(states))
+    def _plan_without_demonstration(
+        self, expert: torch.Tensor, agent_state: torch.Tensor, guided: bool
+    ) -> torch.Tensor:
+        """Raw rows planned from the null demonstration by the branch ``_branch(guided)``."""
+        net = self._branch(guided)
+        _, states = net.rollout_from_context(self._null_context_for(expert, guided), agent_state)
+        return net.predict_waypoints(net.pool(states))
 
     @torch.inference_mode()
     def plan(
@@ -225,24 +259,32 @@ class Planner:
             else:
                 encoded = model.encode(torch.cat([expert, agent], 0)).float()
                 agent_state = encoded[n:]
-        if cached is not None:
-            context = cached
-        else:
-            context = model.action_model.context(encoded[:n].unsqueeze(0))
-            self._context_key, self._context, self._gain = key, context, None
-            if self.cfg.guidance != 1.0 and model.world_model is not None:
-                self._gain = demonstration_gain(model, encoded[:n], context, self._null_context_for(expert))
+        if cached is None:
+            expert_states = encoded[:n].unsqueeze(0)
+            self._context_key, self._gain = key, None
+            self._context = model.action_model.context(expert_states)
+            self._guided_context = None
+            if self.guided_model is not None:
+                self._guided_context = self.guided_model.action_model.context(expert_states)
+            judge = self._branch(True)
+            if self.cfg.guidance != 1.0 and judge.world_model is not None:
+                judged = self._context if self._guided_context is None else self._guided_context
+                null = self._null_context_for(expert, True)
+                self._gain = demonstration_gain(judge, encoded[:n], judged, null)
+        guided = self.cfg.guidance != 1.0 and (self._gain is None or self._gain >= self.cfg.guidance_gate)
+        net = self._branch(guided)
+        context = self._guided_context if net is not self.model else self._context
+        assert context is not None  # made above for this demonstration
         t2 = time.perf_counter()
-        _, states = model.rollout_from_context(context, agent_state)
-        pooled = model.pool(states)
+        _, states = net.rollout_from_context(context, agent_state)
+        pooled = net.pool(states)
         t3 = time.perf_counter()
-        raw = model.predict_waypoints(pooled)
+        raw = net.predict_waypoints(pooled)
         K_dev, T_dev = K_model[None].to(self.device), torch.as_tensor(T, device=self.device)[None]
-        null_world, guided = None, False
+        null_world = None
         if self.cfg.guidance != 1.0:
-            null_raw = self._plan_without_demonstration(expert, agent_state)
+            null_raw = self._plan_without_demonstration(expert, agent_state, guided)
             null_world = torch.cat(self._waypoints(null_raw, K_dev, T_dev)[1:], 1).cpu().numpy()
-            guided = self._gain is None or self._gain >= self.cfg.guidance_gate
             if guided:
                 raw = guide(raw, null_raw, self.cfg.guidance)
         p_cam, p_world, grip = self._waypoints(raw, K_dev, T_dev)

@@ -1,7 +1,7 @@
 """`studio export-policy`: turn a training checkpoint (and its latent decoder) into a small inference file.
 
     studio export-policy RUN_DIR/best.pt OUT.pt [--decoder DECODER_DIR/best.pt] [--fp32] [--guidance G]
-        [--guidance-gate GAIN | --gate-percentile P --data DATA_DIR]
+        [--guidance-gate GAIN | --gate-percentile P --data DATA_DIR] [--guided-from CHECKPOINT]
 
 The policy file keeps everything planning needs — the checkpoint format, full configuration, dataset
 fingerprint, trained tasks, step — and drops the optimiser and scheduler state (two thirds of a training
@@ -15,6 +15,13 @@ This is how ``studio/policies/`` is produced.
 the demonstration gains of every stored expert demonstration of the checkpoint's training tasks, so that a
 held-out demonstration is guided only when its scene explains it less than P % of the training demonstrations
 are explained by theirs (``studio.model.guidance``).
+
+``--guided-from CHECKPOINT`` gives a gated policy a guided branch: CHECKPOINT's π, world model and waypoint head
+(it must share the policy's architecture and encoder weights, e.g. an earlier stage trained with the encoder
+fixed) compute each demonstration's gain and plan, with guidance, the demonstrations that reach the gate; the
+policy's own weights plan the rest. With ``--gate-percentile`` the gate is then read off the branch's gains,
+which are the ones it is compared with. Why a policy may want two: a fine-tune that makes the plans that need no
+guidance more precise can cost the guided ones (docs/experiments.md, Meta-World).
 """
 
 from __future__ import annotations
@@ -45,10 +52,18 @@ def export_policy(
     half: bool = True,
     guidance: float | None = None,
     guidance_gate: float | None = None,
+    guided_from: str | Path | None = None,
 ) -> dict[str, int]:
     """Write the policy (and decoder) files; returns their sizes in bytes. ``guidance`` and ``guidance_gate``
-    set the policy's demonstration guidance and its gate (``ModelConfig``; None keeps the checkpoint's)."""
-    from studio.model.checkpoint import load_checkpoint
+    set the policy's demonstration guidance and its gate (``ModelConfig``; None keeps the checkpoint's);
+    ``guided_from`` the checkpoint of its guided branch (module docstring)."""
+    from studio.model.checkpoint import (
+        GUIDED_WEIGHTS,
+        check_guided_branch,
+        load_checkpoint,
+        model_from_checkpoint,
+    )
+    from studio.model.config import RunConfig
     from studio.model.train_decoder import DECODER_FORMAT
 
     out = Path(out)
@@ -63,8 +78,6 @@ def export_policy(
         if v is not None
     ]
     if overrides:
-        from studio.model.config import RunConfig
-
         run = RunConfig.from_dict(ckpt["config"]).with_overrides(overrides)
         if run.model.guidance != 1.0 and run.train.demo_dropout == 0.0:
             raise ValueError(
@@ -74,6 +87,25 @@ def export_policy(
         if run.model.guidance_gate > 0.0 and run.model.guidance == 1.0:
             raise ValueError("a guidance gate without guidance does nothing: give --guidance too")
         policy["config"] = run.to_dict()
+    if guided_from is not None:
+        branch = load_checkpoint(guided_from)
+        if branch.get(GUIDED_WEIGHTS) is not None:
+            raise ValueError(
+                f"{guided_from} has a guided branch of its own: name the checkpoint it came from"
+            )
+        if RunConfig.from_dict(branch["config"]).train.demo_dropout == 0.0:
+            raise ValueError(
+                f"{guided_from} was trained without train.demo_dropout: it has never planned from the null "
+                "demonstration, so its guided plans would extrapolate from an untrained plan"
+            )
+        # the full-precision weights: the branch's encoder is compared before either is rounded to float16
+        check_guided_branch(
+            model_from_checkpoint({**ckpt, "config": policy["config"]}), model_from_checkpoint(branch)
+        )
+        policy[GUIDED_WEIGHTS] = _weights(
+            {k: v for k, v in branch["model"].items() if not k.startswith("encoder.")}, half
+        )
+        policy["guided_from"] = str(guided_from)
     atomic_save(policy, out)
     sizes = {"policy_bytes": out.stat().st_size}
     if decoder is not None:
@@ -137,6 +169,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(needs --data; instead of --guidance-gate)",
     )
     parser.add_argument("--data", help="dataset root whose demonstrations --gate-percentile reads")
+    parser.add_argument(
+        "--guided-from",
+        help="a checkpoint of the same network and encoder whose other weights plan (guided) the demonstrations "
+        "that reach the gate, and compute their gains; the policy's own weights plan the rest",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -145,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
             if args.guidance_gate is not None or not args.data:
                 raise ValueError("--gate-percentile needs --data and replaces --guidance-gate")
             args.guidance_gate, n = gate_from_training_demonstrations(
-                args.checkpoint, args.data, args.gate_percentile
+                args.guided_from or args.checkpoint, args.data, args.gate_percentile
             )
             print(
                 f"guidance gate {args.guidance_gate:.4f}: the {args.gate_percentile:g}th percentile of {n} "
@@ -158,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
             half=not args.fp32,
             guidance=args.guidance,
             guidance_gate=args.guidance_gate,
+            guided_from=args.guided_from,
         )
     except (FileNotFoundError, ValueError) as e:
         print(f"studio export-policy: {e}", file=sys.stderr)

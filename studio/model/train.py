@@ -262,7 +262,8 @@ def train(
     it is ignored when the run resumes from its own ``last.pt``. Two differences are allowed: a demonstration-task
     head that is new or names other labels, and a world model the checkpoint does not have (``init`` from the
     no-world-model ablation): either starts untrained. A pretrained encoder (``studio pretrain-encoder``) starts
-    the encoder only.
+    the encoder only. A policy file's guided branch (``studio export-policy --guided-from``) is not carried: the
+    run starts from the policy's own weights, and its gate then compares the run's own gains.
 
     Under ``torchrun`` the process group is joined here unless the caller already did; a group joined here is
     also left here, after a barrier, so that no rank tears its gloo connections down while a peer still talks on

@@ -201,3 +201,65 @@ def test_the_gate_is_checked_and_export_policy_writes_it(tmp_path):
     with pytest.raises(ValueError, match="gate without guidance does nothing"):
         export_policy(tmp_path / "run" / "last.pt", tmp_path / "bad.pt", guidance_gate=1.04)
     assert not (tmp_path / "bad.pt").exists()
+
+
+def _branch_weights(weights: dict, seed: int) -> dict:
+    """``weights`` with every part but the encoder moved: another fine-tune of the same encoder."""
+    g = torch.Generator().manual_seed(seed)
+    return {
+        k: v
+        if k.startswith("encoder.") or not k.endswith((".weight", ".bias"))
+        else v + 0.05 * torch.randn(v.shape, generator=g)
+        for k, v in weights.items()
+    }
+
+
+def test_a_guided_branch_plans_the_guided_demonstrations_and_the_policys_own_weights_the_rest():
+    torch.manual_seed(0)
+    own = OSVIWM(tiny_run_config().model).state_dict()
+    branch = _branch_weights(own, 1)
+    data = SyntheticPairs()
+    expert, agent, K = data[0]["expert_frames"], data[0]["agent_frames"][0], data[0]["K"]
+    branch_alone = _planner(4.0, branch).plan(expert, agent, K, np.eye(4))
+    own_alone = _planner(1.0, own).plan(expert, agent, K, np.eye(4))
+    own_gain = _planner(4.0, own).plan(expert, agent, K, np.eye(4)).guidance_gain
+    gain = branch_alone.guidance_gain
+    assert gain is not None and own_gain is not None and abs(gain - own_gain) > 1e-4
+
+    def net(weights: dict, gate: float, guidance: float = 4.0) -> OSVIWM:
+        run = tiny_run_config().with_overrides([f"model.guidance={guidance}", f"model.guidance_gate={gate}"])
+        model = OSVIWM(run.model)
+        model.load_state_dict(weights)
+        return model
+
+    def two(gate: float) -> Planner:
+        return Planner(net(own, gate), guided_model=net(branch, gate))
+
+    reached = two(gain * 0.99).plan(
+        expert, agent, K, np.eye(4)
+    )  # the branch's gain decides, not the policy's
+    assert reached.guided and reached.guidance_gain == pytest.approx(gain)
+    assert np.allclose(reached.waypoints_world, branch_alone.waypoints_world, atol=1e-6)
+    assert np.allclose(reached.latent_states, branch_alone.latent_states, atol=1e-6)
+    assert np.allclose(reached.null_waypoints_world, branch_alone.null_waypoints_world, atol=1e-6)
+    below = two(gain * 1.01).plan(expert, agent, K, np.eye(4))
+    assert not below.guided and below.guidance_gain == pytest.approx(gain)
+    assert np.allclose(below.waypoints_world, own_alone.waypoints_world, atol=1e-6)
+    assert np.allclose(below.latent_states, own_alone.latent_states, atol=1e-6)
+    own_null = _planner(4.0, own).plan(expert, agent, K, np.eye(4)).null_waypoints_world
+    assert np.allclose(below.null_waypoints_world, own_null, atol=1e-6)
+    assert np.abs(reached.waypoints_world - below.waypoints_world).max() > 1e-3
+    # the gate is set from the branch's gains, so the planner reports those
+    assert two(gain).demonstration_gain(expert) == pytest.approx(gain)
+
+    # a branch that cannot plan beside the policy is refused
+    with pytest.raises(ValueError, match="needs guidance and a gate"):
+        Planner(net(own, 0.0), guided_model=net(branch, 1.1))
+    with pytest.raises(ValueError, match="needs guidance and a gate"):
+        Planner(net(own, 1.1, guidance=1.0), guided_model=net(branch, 1.1))
+    moved = {k: v + 0.01 if k.endswith("conv1.weight") else v for k, v in branch.items()}
+    with pytest.raises(ValueError, match="encoder weights differ"):
+        Planner(net(own, 1.1), guided_model=net(moved, 1.1))
+    wider = OSVIWM(tiny_run_config().with_overrides(["model.max_waypoints=7"]).model)
+    with pytest.raises(ValueError, match=r"network differs in model\.max_waypoints"):
+        Planner(net(own, 1.1), guided_model=wider)

@@ -114,9 +114,92 @@ def test_the_gate_percentile_is_read_off_the_training_tasks_stored_demonstration
     assert main(["export-policy", *args, "--data", str(data)]) == 0
     assert Planner.load(tmp_path / "gated.pt").cfg.guidance_gate == pytest.approx(max(gains))
     assert main(["export-policy", *args]) == 2  # no --data
+    # with a guided branch the gate is read off the branch's gains, which are the ones it is compared with
+    g = torch.Generator().manual_seed(1)
+    own = dict(ckpt)
+    own["model"] = {
+        k: v + 0.05 * torch.randn(v.shape, generator=g)
+        if k.startswith("world_model.") and k.endswith("weight")
+        else v
+        for k, v in ckpt["model"].items()
+    }
+    torch.save(own, tmp_path / "own.pt")
+    two = [str(tmp_path / "own.pt"), str(tmp_path / "two.pt"), "--guidance", "5", "--gate-percentile", "100"]
+    assert main(["export-policy", *two, "--data", str(data), "--guided-from", str(named)]) == 0
+    assert Planner.load(tmp_path / "two.pt").cfg.guidance_gate == pytest.approx(max(gains))
+    assert gate_from_training_demonstrations(tmp_path / "own.pt", data, 100)[0] != pytest.approx(max(gains))
     with pytest.raises(ValueError, match="percentile must be"):
         gate_from_training_demonstrations(named, data, 0)
     ckpt["tasks"] = ["pick_place/bar->yellow"]
     torch.save(ckpt, named)
     with pytest.raises(ValueError, match="no expert demonstration"):
         gate_from_training_demonstrations(named, data, 95)
+
+
+def test_a_guided_branch_is_written_without_its_encoder_and_planned_by_the_loaded_policy(tmp_path):
+    from studio.model.checkpoint import GUIDED_WEIGHTS, guided_model_from_checkpoint, model_from_checkpoint
+
+    dropped = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(
+        ["train.demo_dropout=0.5"]
+    )
+    train(dropped, SyntheticPairs(), None, tmp_path / "guide", show_progress=False)
+    # the next stage: the same encoder, fixed; the other parts trained on
+    fixed = dropped.with_overrides(["train.freeze=encoder", "train.lr_max=1e-2"])
+    train(
+        fixed,
+        SyntheticPairs(),
+        None,
+        tmp_path / "end",
+        show_progress=False,
+        init=tmp_path / "guide" / "last.pt",
+    )
+    end, guide = tmp_path / "end" / "last.pt", tmp_path / "guide" / "last.pt"
+    export_policy(end, tmp_path / "two.pt", guidance=4.0, guidance_gate=1e-6, guided_from=guide)
+    policy = load_checkpoint(tmp_path / "two.pt")
+    assert policy["guided_from"] == str(guide)
+    assert policy[GUIDED_WEIGHTS] and not any(k.startswith("encoder.") for k in policy[GUIDED_WEIGHTS])
+    branch = guided_model_from_checkpoint(policy)
+    expected = model_from_checkpoint(load_checkpoint(guide)).state_dict()
+    assert branch is not None and all(
+        torch.allclose(v, expected[k], atol=1e-2) for k, v in branch.state_dict().items()
+    )  # float16-stored
+    sample = SyntheticPairs()[0]
+    args = (sample["expert_frames"], sample["agent_frames"][0], sample["K"], np.eye(4))
+    planner = Planner.load(tmp_path / "two.pt")
+    assert planner.guided_model is not None
+    plan = planner.plan(*args)  # a gate this low guides every demonstration: the branch plans
+    export_policy(guide, tmp_path / "guide.pt", guidance=4.0)
+    alone = Planner.load(tmp_path / "guide.pt").plan(*args)
+    assert plan.guided and np.abs(plan.waypoints_world - alone.waypoints_world).max() < 1e-5
+    assert guided_model_from_checkpoint(load_checkpoint(tmp_path / "guide.pt")) is None
+
+    # refusals, and nothing written for them
+    with pytest.raises(ValueError, match="needs guidance and a gate"):
+        export_policy(end, tmp_path / "bad.pt", guidance=4.0, guided_from=guide)
+    other = tiny_run_config(max_steps=2, batch_size=4, val_every=100, seed=3).with_overrides(
+        ["train.demo_dropout=0.5"]
+    )
+    train(other, SyntheticPairs(), None, tmp_path / "apart", show_progress=False)
+    with pytest.raises(ValueError, match="encoder weights differ"):
+        export_policy(
+            end,
+            tmp_path / "bad.pt",
+            guidance=4.0,
+            guidance_gate=1.1,
+            guided_from=tmp_path / "apart" / "last.pt",
+        )
+    with pytest.raises(ValueError, match="has a guided branch of its own"):
+        export_policy(
+            end, tmp_path / "bad.pt", guidance=4.0, guidance_gate=1.1, guided_from=tmp_path / "two.pt"
+        )
+    plain = tiny_run_config(max_steps=1, batch_size=4, val_every=100)
+    train(plain, SyntheticPairs(), None, tmp_path / "plain", show_progress=False)
+    with pytest.raises(ValueError, match=r"trained without train\.demo_dropout"):
+        export_policy(
+            end,
+            tmp_path / "bad.pt",
+            guidance=4.0,
+            guidance_gate=1.1,
+            guided_from=tmp_path / "plain" / "last.pt",
+        )
+    assert not (tmp_path / "bad.pt").exists()
