@@ -15,7 +15,8 @@ trains one stage (:func:`stage_config`); ``studio quickstart`` runs the pick-and
 * ``metaworld`` — the shipped ``metaworld-cpu`` at 96×96, on the recorded gripper commands: ``base`` without the
   world model; ``grow`` with the encoder and π fixed; ``guide`` with the encoder fixed and demonstration dropout,
   so that the policy can be planned with guidance (``studio export-policy --guidance``); ``end`` continues
-  ``guide`` with a loss on each plan's end (``train.endpoint_weight``). The shipped file's ``guide`` and ``end``
+  ``guide`` with a loss on each plan's end (``train.endpoint_weight``); the policy is ``end`` exported with
+  ``guide`` as its guided branch (``studio export-policy --guided-from``). The shipped file's ``guide`` and ``end``
   stages started from the float16 exports of the stage before; the recipe starts them from the checkpoints.
 
 Why each setting is what it is: docs/experiments.md. The shipped policies' JSON files list the commands they
@@ -181,7 +182,7 @@ RECIPES: dict[str, Recipe] = {
                 Stage(
                     "end",
                     500,
-                    7,
+                    8,
                     _frozen(_METAWORLD_SIZE),
                     # the guide stage's settings at half its learning rate, with the loss on each plan's end
                     _frozen(
