@@ -60,6 +60,7 @@ def export_policy(
     from studio.model.checkpoint import (
         GUIDED_WEIGHTS,
         check_guided_branch,
+        guided_model_from_checkpoint,
         load_checkpoint,
         model_from_checkpoint,
     )
@@ -106,6 +107,12 @@ def export_policy(
             {k: v for k, v in branch["model"].items() if not k.startswith("encoder.")}, half
         )
         policy["guided_from"] = str(guided_from)
+    elif (
+        policy.get(GUIDED_WEIGHTS) is not None
+    ):  # a policy file's branch, carried: its new settings must keep it
+        branch_model = guided_model_from_checkpoint(policy)
+        assert branch_model is not None
+        check_guided_branch(model_from_checkpoint(policy), branch_model)
     atomic_save(policy, out)
     sizes = {"policy_bytes": out.stat().st_size}
     if decoder is not None:

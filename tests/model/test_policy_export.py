@@ -172,6 +172,11 @@ def test_a_guided_branch_is_written_without_its_encoder_and_planned_by_the_loade
     alone = Planner.load(tmp_path / "guide.pt").plan(*args)
     assert plan.guided and np.abs(plan.waypoints_world - alone.waypoints_world).max() < 1e-5
     assert guided_model_from_checkpoint(load_checkpoint(tmp_path / "guide.pt")) is None
+    # exported again, the branch is carried, and kept only with guidance and a gate
+    export_policy(tmp_path / "two.pt", tmp_path / "again.pt", guidance_gate=2e-6)
+    assert load_checkpoint(tmp_path / "again.pt")[GUIDED_WEIGHTS].keys() == policy[GUIDED_WEIGHTS].keys()
+    with pytest.raises(ValueError, match="needs guidance and a gate"):
+        export_policy(tmp_path / "two.pt", tmp_path / "bad.pt", guidance=1.0, guidance_gate=0.0)
 
     # refusals, and nothing written for them
     with pytest.raises(ValueError, match="needs guidance and a gate"):
