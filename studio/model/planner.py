@@ -144,9 +144,8 @@ class Planner:
         self._context_key: str | None = None
         self._context: KVCache | None = None
         self._guided_context: KVCache | None = None
-        self._null_contexts: dict[
-            bool, KVCache
-        ] = {}  # by branch: False the policy's own weights, True the guided
+        # π's caches of the null demonstration, by branch: False the policy's own weights, True the guided branch
+        self._null_contexts: dict[bool, KVCache] = {}
         self._gain: float | None = None
 
     @classmethod
