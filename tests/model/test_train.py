@@ -395,7 +395,7 @@ def test_the_endpoint_loss_adds_to_the_total_with_its_weight_and_is_reported():
         position = core.decode_waypoints(out.waypoints.float(), batch.K)["position"]
         expected = float(endpoint_loss(position, batch.path, core.cfg.max_waypoints))
     assert on[1]["loss_endpoint"] == pytest.approx(expected, rel=1e-5) and expected > 0
-    assert float(on[0]) == pytest.approx(float(off[0]) + 30.0 * expected, rel=1e-5)
+    assert float(on[0].detach()) == pytest.approx(float(off[0].detach()) + 30.0 * expected, rel=1e-5)
 
 
 @pytest.mark.slow
