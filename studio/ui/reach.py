@@ -220,7 +220,11 @@ class HeightRules:
         holding = self.held(ee, gripper, objects)
         if holding is not None:
             rest = self.rest_z.get(holding, float(objects[holding][2]))
-            return max(rest, self.lowest) + PLACE_CLEARANCE, f"placing the {object_label(holding)}"
+            # where the grasp point is when the object rests: the object may sit lower or higher in the fingers
+            # than it was grasped (it slips), and aiming the grasp point at the rest height would then press it
+            # into the table and never arrive
+            offset = float(ee[2]) - float(objects[holding][2])
+            return max(rest + offset, self.lowest) + PLACE_CLEARANCE, f"placing the {object_label(holding)}"
         below = self.under(ee, objects)
         if below is not None:
             return max(float(objects[below][2]), self.lowest), f"to grasp height of the {object_label(below)}"

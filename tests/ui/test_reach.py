@@ -100,6 +100,10 @@ def test_down_goes_to_grasp_height_over_an_object_and_to_the_table_elsewhere(pic
     assert rules.held(np.array([0.3, 0.2, 0.15]), 0.0, objects) is None, "an open gripper holds nothing"
     z, why = rules.down(np.array([0.3, 0.2, 0.15]), 1.0, objects, 0.0)
     assert z == pytest.approx(max(cube[2], rules.lowest) + 0.01) and "placing the cube" in why
+    # The cube slipped 2 cm down in the fingers: the grasp point stops 2 cm higher, where the cube rests.
+    objects["obj_cube"] = np.array([0.3, 0.2, 0.13])
+    z, why = rules.down(np.array([0.3, 0.2, 0.15]), 1.0, objects, 0.0)
+    assert z == pytest.approx(max(cube[2] + 0.02, rules.lowest) + 0.01) and "placing the cube" in why
 
 
 class _Clicker:

@@ -110,6 +110,7 @@ class TeleopPanel:
         self._pending: dict[int, float] = {}
         self._pending_lock = threading.Lock()
         self._success_touched = False
+        self._success_written = False  # the value the task's check last wrote into the box
         self._recording = False
         self._closed = False
         self._token = 0
@@ -317,7 +318,7 @@ class TeleopPanel:
         self.robot.value, self.task.value, self.seed.value = go.robot, go.task, go.seed
         self._draft, self._fork_note, self._fork_origin = go.fork.draft, what, dict(go.fork.origin)
         self._recording = True
-        self._success_touched = False
+        self._success_touched = self._success_written = False
         self.success.value = False
         self._streaming = False
         self.show_live()
@@ -690,7 +691,7 @@ class TeleopPanel:
             raise
         self._draft, self._fork_note, self._fork_origin = draft, "", {}
         self._recording = True
-        self._success_touched = False
+        self._success_touched = self._success_written = False
         self.success.value = False
         frame = self.client.latest_pose()
         self._place_gizmo(np.asarray(frame.ee_pos) if frame is not None else None)
@@ -837,8 +838,11 @@ class TeleopPanel:
             if isinstance(state, msg.SessionState) and state.state == "recording":
                 seconds = state.recorded_steps * (self.info.control_dt if self.info else 0.0)
                 self.rec_status.content = f"### ● REC {seconds:5.1f} s — {state.recorded_steps} steps"
-                if not self._success_touched and self.success.value != state.success:
-                    self.success.value = bool(state.success)
+                if not self._success_touched and self.success.value != self._success_written:
+                    # the person's tick arrived before its callback ran: it is theirs, do not write over it
+                    self._success_touched = True
+                elif not self._success_touched and self.success.value != state.success:
+                    self.success.value = self._success_written = bool(state.success)
         self._refresh_drafts()
         if self.app.dataset_version != self._list_version or self.task.value != self._list_task:
             self._list_version, self._list_task = self.app.dataset_version, self.task.value
