@@ -107,9 +107,8 @@ def export_policy(
             {k: v for k, v in branch["model"].items() if not k.startswith("encoder.")}, half
         )
         policy["guided_from"] = str(guided_from)
-    elif (
-        policy.get(GUIDED_WEIGHTS) is not None
-    ):  # a policy file's branch, carried: its new settings must keep it
+    elif policy.get(GUIDED_WEIGHTS) is not None:
+        # a policy file's branch, carried: its new settings must keep it
         branch_model = guided_model_from_checkpoint(policy)
         assert branch_model is not None
         check_guided_branch(model_from_checkpoint(policy), branch_model)

@@ -838,11 +838,12 @@ class TeleopPanel:
             if isinstance(state, msg.SessionState) and state.state == "recording":
                 seconds = state.recorded_steps * (self.info.control_dt if self.info else 0.0)
                 self.rec_status.content = f"### ● REC {seconds:5.1f} s — {state.recorded_steps} steps"
-                if not self._success_touched and self.success.value != self._success_written:
-                    # the person's tick arrived before its callback ran: it is theirs, do not write over it
-                    self._success_touched = True
-                elif not self._success_touched and self.success.value != state.success:
-                    self.success.value = self._success_written = bool(state.success)
+                if not self._success_touched:
+                    if self.success.value != self._success_written:
+                        # the person's tick arrived before its callback ran: it is theirs, do not write over it
+                        self._success_touched = True
+                    elif self.success.value != state.success:
+                        self.success.value = self._success_written = bool(state.success)
         self._refresh_drafts()
         if self.app.dataset_version != self._list_version or self.task.value != self._list_task:
             self._list_version, self._list_task = self.app.dataset_version, self.task.value
