@@ -139,12 +139,16 @@ def run_plan_job(ctx) -> dict[str, Any]:
         arrays["null_waypoints_world"] = np.asarray(null, dtype=np.float64)
         cfg = planner.cfg
         gain = getattr(plan, "guidance_gain", None)
+        surprise = getattr(plan, "guidance_surprise", None)
         guidance = {
             "scale": float(cfg.guidance),
             "gate": float(cfg.guidance_gate),
             "gain": None if gain is None else float(gain),
             "guided": bool(getattr(plan, "guided", True)),
         }
+        if surprise is not None:  # a policy with a surprise gate
+            guidance["surprise"] = float(surprise)
+            guidance["surprise_gate"] = float(getattr(cfg, "surprise_gate", 0.0))
     decoded = 0
     pooled = getattr(plan, "pooled_states", None)
     if checkpoint != "oracle" and pooled is not None:

@@ -82,6 +82,8 @@ class PlanRecord:
     null_waypoints_world: np.ndarray | None = None
     #: with guidance and a world model: the demonstration's gain, and whether this plan was guided (``PlanResult``).
     guidance_gain: float | None = None
+    #: with a surprise gate: the demonstration's surprise (``PlanResult``).
+    guidance_surprise: float | None = None
     guided: bool = False
 
 
@@ -200,6 +202,7 @@ def run_rollout(
                 pooled_states=getattr(result, "pooled_states", None),
                 null_waypoints_world=getattr(result, "null_waypoints_world", None),
                 guidance_gain=getattr(result, "guidance_gain", None),
+                guidance_surprise=getattr(result, "guidance_surprise", None),
                 guided=bool(getattr(result, "guided", False)),
             )
         )
@@ -275,6 +278,8 @@ def store_rollout(
                 arrays[f"plan{i}_guided"] = np.array(p.guided)
             if p.guidance_gain is not None:
                 arrays[f"plan{i}_guidance_gain"] = np.array(p.guidance_gain)
+            if p.guidance_surprise is not None:
+                arrays[f"plan{i}_guidance_surprise"] = np.array(p.guidance_surprise)
         arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
         arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
         np.savez_compressed(tmp / "plans.npz", allow_pickle=False, **arrays)

@@ -94,6 +94,10 @@ class ModelConfig:
             model predicts the demonstration's video with it than from its scene alone) reaches this; the others
             are planned from the demonstration alone. 0 guides every demonstration. Needs the world model; a
             planning setting (``studio export-policy --guidance-gate``).
+        surprise_gate: also guide, with the policy's own weights, demonstrations whose
+            ``guidance.demonstration_surprise`` (how badly the world model predicts the demonstration's video even
+            with it) reaches this, whatever their gain. 0 turns it off. Needs guidance ≠ 1 and the world model; a
+            planning setting (``studio export-policy --surprise-gate``).
     """
 
     image_size: tuple[int, int] = (240, 320)
@@ -130,6 +134,7 @@ class ModelConfig:
     demo_task_table: tuple[tuple[int, ...], ...] = ()
     guidance: float = 1.0
     guidance_gate: float = 0.0
+    surprise_gate: float = 0.0
 
     def __post_init__(self) -> None:
         # JSON gives lists where the fields hold tuples; image_size's length is checked below
@@ -164,6 +169,10 @@ class ModelConfig:
             raise ValueError(f"guidance_gate must be >= 0, got {self.guidance_gate}")
         if self.guidance_gate > 0.0 and not self.world_model:
             raise ValueError("guidance_gate needs the world model: the gain is read from its predictions")
+        if self.surprise_gate < 0.0:
+            raise ValueError(f"surprise_gate must be >= 0, got {self.surprise_gate}")
+        if self.surprise_gate > 0.0 and not self.world_model:
+            raise ValueError("surprise_gate needs the world model: the surprise is read from its predictions")
 
     @property
     def waypoint_rows(self) -> int:
@@ -182,7 +191,7 @@ class ModelConfig:
 FREEZABLE = ("encoder", "action_model", "world_model", "temporal_pool", "head", "demo_task_head")
 
 
-PLANNING_FIELDS = ("guidance", "guidance_gate")
+PLANNING_FIELDS = ("guidance", "guidance_gate", "surprise_gate")
 """``ModelConfig`` fields that change only how a trained model is planned (set by ``studio export-policy``): a run
 started from a policy file (``--init``) takes them from its own configuration, not from the file."""
 

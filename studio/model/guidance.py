@@ -34,7 +34,16 @@ lifted the easy tasks and cost the guided door-unlock plans, and the policy ship
 (docs/experiments.md).
 
 The gain's scale is the run's: ``studio export-policy --gate-percentile`` sets the gate from the run's own training
-demonstrations (the shipped Meta-World policy is gated at their 95th percentile). Off by default (g = 1, no gate).
+demonstrations (the shipped Meta-World policy is gated at their 95th percentile).
+
+The surprise gate (``ModelConfig.surprise_gate``): the gain misses a demonstration that the world model predicts
+badly with it and without it alike — its reading of the demonstration is itself wrong, so the demonstration barely
+moves the prediction. On Meta-World window-open is such a task: its first frames look like window-close's, the one
+window task in training, so the plan closes the window with or without the demonstration (gain about 1), and the
+prediction of the demonstration's later frames misses by more than for nearly every training demonstration.
+``demonstration_surprise`` is that error (the gain's denominator); a policy with a surprise gate also guides, with
+its own weights, the demonstrations whose surprise reaches it. ``studio export-policy --surprise-percentile`` reads
+it off the training demonstrations' surprises, as ``--gate-percentile`` does the gate. Off by default (g = 1, no gate).
 What guidance and the gate do on Meta-World, task by task, is measured in docs/experiments.md ("How far is
 Meta-World from the paper, and what moved it?"); the shipped policy's figures are in docs/results.md.
 """
@@ -77,24 +86,42 @@ def guide(with_demo: torch.Tensor, without_demo: torch.Tensor, scale: float) -> 
     return without_demo + scale * (with_demo - without_demo)
 
 
+def prediction_error(model: OSVIWM, expert_states: torch.Tensor, context: KVCache) -> float:
+    """How far π and 𝒲 predict the demonstration's own video from its first frame, through π's cache ``context``.
+
+    ``expert_states`` (N, *state_shape) are the encoded demonstration frames. The recursion from the first frame
+    predicts the later states; each is compared (pooled keypoints, L2) with the demonstration's frame at the same
+    fraction of the video as the training targets' agent frames, and the distances are summed.
+    """
+    if model.world_model is None:
+        raise ValueError(
+            "the demonstration's prediction error needs the world model (ModelConfig.world_model)"
+        )
+    n, m = expert_states.shape[0], model.cfg.n_agent_frames
+    targets = [round(i / (m - 1) * (n - 1)) for i in model.target_frame_indices()]
+    actual = model.pool(expert_states[targets])
+    _, states = model.rollout_from_context(context, expert_states[:1])
+    return float((model.pool(states)[0] - actual).norm(dim=-1).sum())
+
+
 def demonstration_gain(
     model: OSVIWM, expert_states: torch.Tensor, context: KVCache, null_context: KVCache
 ) -> float:
     """How much better the world model predicts the demonstration's own video with it than from its scene alone.
 
-    ``expert_states`` (N, *state_shape) are the encoded demonstration frames, ``context`` and ``null_context``
-    π's caches of the demonstration and of the null one. From the first frame, both recursions predict the later
-    states; each is compared (pooled keypoints, L2) with the demonstration's frames at the same fraction of the
-    video as the training targets' agent frames. Returns error(null) / error(demonstration).
+    ``context`` and ``null_context`` are π's caches of the demonstration and of the null one; returns
+    ``prediction_error`` through the null context over that through the demonstration's.
     """
     if model.world_model is None:
         raise ValueError("the demonstration gain needs the world model (ModelConfig.world_model)")
-    n, m = expert_states.shape[0], model.cfg.n_agent_frames
-    targets = [round(i / (m - 1) * (n - 1)) for i in model.target_frame_indices()]
-    actual = model.pool(expert_states[targets])
-    first = expert_states[:1]
-    errors = []
-    for ctx in (null_context, context):
-        _, states = model.rollout_from_context(ctx, first)
-        errors.append(float((model.pool(states)[0] - actual).norm(dim=-1).sum()))
-    return errors[0] / max(errors[1], 1e-12)
+    return prediction_error(model, expert_states, null_context) / max(
+        prediction_error(model, expert_states, context), 1e-12
+    )
+
+
+def demonstration_surprise(model: OSVIWM, expert_states: torch.Tensor, context: KVCache) -> float:
+    """How badly the world model predicts the demonstration's own video even with it: ``prediction_error`` through
+    the demonstration's context (the gain's denominator)."""
+    if model.world_model is None:
+        raise ValueError("the demonstration's surprise needs the world model (ModelConfig.world_model)")
+    return prediction_error(model, expert_states, context)

@@ -24,6 +24,8 @@ and returned; a gated policy (``ModelConfig.guidance_gate``) guides only demonst
 A policy file with a guided branch (``studio export-policy --guided-from``; ``guidance``) holds a second set of
 weights for π, 𝒲 and the waypoint head, on the same encoder: the branch computes the gain, and plans (guided) the
 demonstrations that reach the gate; the policy's own weights plan the others, unguided. The frames are encoded once.
+A policy with a surprise gate (``ModelConfig.surprise_gate``) also guides, with its own weights, the demonstrations
+below the gate whose surprise (``guidance.demonstration_surprise``, read by its own weights) reaches that gate.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ from studio.model.checkpoint import (
     model_from_checkpoint,
 )
 from studio.model.geometry import camera_to_world, resize_intrinsics
-from studio.model.guidance import demonstration_gain, guide, null_demonstration
+from studio.model.guidance import demonstration_gain, demonstration_surprise, guide, null_demonstration
 from studio.model.osvi_wm import OSVIWM, waypoint_set
 from studio.model.transformer import KVCache
 
@@ -65,7 +67,9 @@ class PlanResult:
         null_waypoints_world: (5, 4) with demonstration guidance, the plan from the null demonstration alone
             (what the scene suggests; world frame, like ``waypoints_world``); None without guidance.
         guidance_gain: with guidance and a world model, the demonstration's gain (``guidance``); else None.
-        guided: whether the returned plan is the guided one (False without guidance, or below the gate).
+        guidance_surprise: with a surprise gate, the demonstration's surprise as the policy's own weights read it
+            (``guidance.demonstration_surprise``); else None.
+        guided: whether the returned plan is the guided one (False without guidance, or below both gates).
     """
 
     waypoints_world: np.ndarray
@@ -76,6 +80,7 @@ class PlanResult:
     reused_expert_context: bool = False
     null_waypoints_world: np.ndarray | None = None
     guidance_gain: float | None = None
+    guidance_surprise: float | None = None
     guided: bool = False
 
     @property
@@ -147,6 +152,7 @@ class Planner:
         # π's caches of the null demonstration, by branch: False the policy's own weights, True the guided branch
         self._null_contexts: dict[bool, KVCache] = {}
         self._gain: float | None = None
+        self._surprise: float | None = None
 
     @classmethod
     def load(
@@ -159,6 +165,7 @@ class Planner:
 
     def clear_cache(self) -> None:
         self._context_key, self._context, self._guided_context, self._gain = None, None, None, None
+        self._surprise = None
 
     @torch.inference_mode()
     def name_demonstration(self, expert_frames: np.ndarray | torch.Tensor) -> tuple[str, ...] | None:
@@ -218,6 +225,17 @@ class Planner:
         context = judge.action_model.context(encoded.unsqueeze(0))
         return demonstration_gain(judge, encoded, context, self._null_context_for(expert, True))
 
+    @torch.inference_mode()
+    def demonstration_surprise(self, expert_frames: np.ndarray | torch.Tensor) -> float:
+        """The demonstration's surprise (``guidance.demonstration_surprise``) as the policy's own weights read it,
+        which is how a plan compares it with the surprise gate; used to set that gate from the training
+        demonstrations (``studio export-policy --surprise-percentile``)."""
+        expert = self._expert_input(expert_frames)
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            encoded = self.model.encode(expert).float()
+        context = self.model.action_model.context(encoded.unsqueeze(0))
+        return demonstration_surprise(self.model, encoded, context)
+
     def _plan_without_demonstration(
         self, expert: torch.Tensor, agent_state: torch.Tensor, guided: bool
     ) -> torch.Tensor:
@@ -260,7 +278,7 @@ class Planner:
                 agent_state = encoded[n:]
         if cached is None:
             expert_states = encoded[:n].unsqueeze(0)
-            self._context_key, self._gain = key, None
+            self._context_key, self._gain, self._surprise = key, None, None
             self._context = model.action_model.context(expert_states)
             self._guided_context = None
             if self.guided_model is not None:
@@ -270,7 +288,12 @@ class Planner:
                 judged = self._context if self._guided_context is None else self._guided_context
                 null = self._null_context_for(expert, True)
                 self._gain = demonstration_gain(judge, encoded[:n], judged, null)
+            if self.cfg.guidance != 1.0 and self.cfg.surprise_gate > 0.0:
+                self._surprise = demonstration_surprise(model, encoded[:n], self._context)
+        # the gate (read by the branch, when there is one) guides with the branch; the surprise gate with the
+        # policy's own weights, the demonstrations the gate leaves
         guided = self.cfg.guidance != 1.0 and (self._gain is None or self._gain >= self.cfg.guidance_gate)
+        surprised = not guided and self._surprise is not None and self._surprise >= self.cfg.surprise_gate
         net = self._branch(guided)
         context = self._guided_context if net is not self.model else self._context
         assert context is not None  # made above for this demonstration
@@ -284,7 +307,7 @@ class Planner:
         if self.cfg.guidance != 1.0:
             null_raw = self._plan_without_demonstration(expert, agent_state, guided)
             null_world = torch.cat(self._waypoints(null_raw, K_dev, T_dev)[1:], 1).cpu().numpy()
-            if guided:
+            if guided or surprised:
                 raw = guide(raw, null_raw, self.cfg.guidance)
         p_cam, p_world, grip = self._waypoints(raw, K_dev, T_dev)
         t4 = time.perf_counter()
@@ -304,7 +327,8 @@ class Planner:
             reused_expert_context=reused,
             null_waypoints_world=null_world,
             guidance_gain=self._gain,  # computed only with guidance
-            guided=guided,
+            guidance_surprise=self._surprise,  # computed only with a surprise gate
+            guided=guided or surprised,
         )
 
     def _waypoints(

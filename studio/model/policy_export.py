@@ -2,6 +2,7 @@
 
     studio export-policy RUN_DIR/best.pt OUT.pt [--decoder DECODER_DIR/best.pt] [--fp32] [--guidance G]
         [--guidance-gate GAIN | --gate-percentile P --data DATA_DIR] [--guided-from CHECKPOINT]
+        [--surprise-gate S | --surprise-percentile P --data DATA_DIR]
 
 The policy file keeps everything planning needs — the checkpoint format, full configuration, dataset
 fingerprint, trained tasks, step — and drops the optimiser and scheduler state (two thirds of a training
@@ -22,6 +23,11 @@ fixed) compute each demonstration's gain and plan, with guidance, the demonstrat
 policy's own weights plan the rest. With ``--gate-percentile`` the gate is then read off the branch's gains,
 which are the ones it is compared with. Why a policy may want two: a fine-tune that makes the plans that need no
 guidance more precise can cost the guided ones (docs/experiments.md, Meta-World).
+
+``--surprise-percentile P`` (or ``--surprise-gate S`` by hand) adds the surprise gate (``studio.model.guidance``):
+the policy's own weights also guide the demonstrations below the gate whose surprise — how badly the world model
+predicts the demonstration's video even with it — reaches the P-th percentile of the training demonstrations'
+surprises, read by the policy's own weights.
 """
 
 from __future__ import annotations
@@ -53,9 +59,11 @@ def export_policy(
     guidance: float | None = None,
     guidance_gate: float | None = None,
     guided_from: str | Path | None = None,
+    surprise_gate: float | None = None,
 ) -> dict[str, int]:
     """Write the policy (and decoder) files; returns their sizes in bytes. ``guidance`` and ``guidance_gate``
-    set the policy's demonstration guidance and its gate (``ModelConfig``; None keeps the checkpoint's);
+    set the policy's demonstration guidance and its gate, ``surprise_gate`` its surprise gate (``ModelConfig``; None
+    keeps the checkpoint's);
     ``guided_from`` the checkpoint of its guided branch (module docstring)."""
     from studio.model.checkpoint import (
         GUIDED_WEIGHTS,
@@ -75,7 +83,11 @@ def export_policy(
     policy["exported_from"] = str(checkpoint)
     overrides = [
         f"model.{k}={v}"
-        for k, v in (("guidance", guidance), ("guidance_gate", guidance_gate))
+        for k, v in (
+            ("guidance", guidance),
+            ("guidance_gate", guidance_gate),
+            ("surprise_gate", surprise_gate),
+        )
         if v is not None
     ]
     if overrides:
@@ -87,6 +99,8 @@ def export_policy(
             )
         if run.model.guidance_gate > 0.0 and run.model.guidance == 1.0:
             raise ValueError("a guidance gate without guidance does nothing: give --guidance too")
+        if run.model.surprise_gate > 0.0 and run.model.guidance == 1.0:
+            raise ValueError("a surprise gate without guidance does nothing: give --guidance too")
         policy["config"] = run.to_dict()
     if guided_from is not None:
         branch = load_checkpoint(guided_from)
@@ -131,24 +145,39 @@ def gate_from_training_demonstrations(
 ) -> tuple[float, int]:
     """The ``percentile``-th percentile of the demonstration gains of the stored expert demonstrations of the
     checkpoint's training tasks, and how many there were."""
+    return _training_percentile(checkpoint, data_dir, percentile, "gain")
+
+
+def surprise_gate_from_training_demonstrations(
+    checkpoint: str | Path, data_dir: str | Path, percentile: float
+) -> tuple[float, int]:
+    """The ``percentile``-th percentile of the surprises (``guidance.demonstration_surprise``) of the stored expert
+    demonstrations of the checkpoint's training tasks, read by its own weights, and how many there were."""
+    return _training_percentile(checkpoint, data_dir, percentile, "surprise")
+
+
+def _training_percentile(
+    checkpoint: str | Path, data_dir: str | Path, percentile: float, measure: str
+) -> tuple[float, int]:
     from studio.data.store import EpisodeStore
     from studio.model.planner import Planner
 
     if not 0.0 < percentile <= 100.0:
-        raise ValueError(f"the gate percentile must be in (0, 100], got {percentile}")
+        raise ValueError(f"the {measure} gate percentile must be in (0, 100], got {percentile}")
     planner = Planner.load(checkpoint)
     if planner.model.world_model is None:
         raise ValueError(
-            f"{checkpoint} has no world model: the demonstration gain is read from its predictions"
+            f"{checkpoint} has no world model: the demonstration {measure} is read from its predictions"
         )
     if not planner.tasks:
         raise ValueError(f"{checkpoint} does not name its training tasks")
+    read = planner.demonstration_gain if measure == "gain" else planner.demonstration_surprise
     with EpisodeStore(data_dir) as store:
         demos = [m.id for m in store.episodes(role="expert", tasks=sorted(set(planner.tasks)))]
         if not demos:
             raise ValueError(f"no expert demonstration of {checkpoint}'s training tasks in {data_dir}")
-        gains = [planner.demonstration_gain(store.load_frames(d)) for d in demos]
-    return float(np.percentile(gains, percentile)), len(gains)
+        values = [read(store.load_frames(d)) for d in demos]
+    return float(np.percentile(values, percentile)), len(values)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -180,6 +209,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a checkpoint of the same network and encoder whose other weights plan (guided) the demonstrations "
         "that reach the gate, and compute their gains; the policy's own weights plan the rest",
     )
+    parser.add_argument(
+        "--surprise-gate",
+        type=float,
+        help="also guide, with the policy's own weights, demonstrations whose surprise (how badly the world model "
+        "predicts the demonstration even with it) reaches this (ModelConfig.surprise_gate; 0: off)",
+    )
+    parser.add_argument(
+        "--surprise-percentile",
+        type=float,
+        help="set the surprise gate to this percentile of the surprises of the training tasks' stored "
+        "demonstrations, read by the policy's own weights (needs --data; instead of --surprise-gate)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -194,6 +235,16 @@ def run(args: argparse.Namespace) -> int:
                 f"guidance gate {args.guidance_gate:.4f}: the {args.gate_percentile:g}th percentile of {n} "
                 "training demonstrations' gains"
             )
+        if args.surprise_percentile is not None:
+            if args.surprise_gate is not None or not args.data:
+                raise ValueError("--surprise-percentile needs --data and replaces --surprise-gate")
+            args.surprise_gate, n = surprise_gate_from_training_demonstrations(
+                args.checkpoint, args.data, args.surprise_percentile
+            )
+            print(
+                f"surprise gate {args.surprise_gate:.4f}: the {args.surprise_percentile:g}th percentile of {n} "
+                "training demonstrations' surprises"
+            )
         sizes = export_policy(
             args.checkpoint,
             args.out,
@@ -202,6 +253,7 @@ def run(args: argparse.Namespace) -> int:
             guidance=args.guidance,
             guidance_gate=args.guidance_gate,
             guided_from=args.guided_from,
+            surprise_gate=args.surprise_gate,
         )
     except (FileNotFoundError, ValueError) as e:
         print(f"studio export-policy: {e}", file=sys.stderr)

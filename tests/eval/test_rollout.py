@@ -205,6 +205,26 @@ def test_a_guided_policys_rollouts_keep_the_null_plan_beside_each_plan(tmp_path)
         assert np.abs(null[:, :3] - plan[:, :3]).max() > 1e-6
         # ungated, every plan is guided; the demonstration's gain is stored with each
         assert bool(guided[f"plan{i}_guided"]) and float(guided[f"plan{i}_guidance_gain"]) > 0
+        assert f"plan{i}_guidance_surprise" not in guided  # no surprise gate, no surprise
+
+
+def test_a_surprise_gated_policys_rollouts_store_the_surprise_that_guided_them(tmp_path):
+    root = tmp_path / "data"
+    _collect_bar_to_blue(root, 1)
+    # no gain reaches a gate of 100, every surprise a surprise gate of 1e-6
+    ck = write_tiny_checkpoint(
+        tmp_path / "p" / "best.pt",
+        guidance=3.0,
+        planning=("model.guidance_gate=100", "model.surprise_gate=1e-6"),
+    )
+    evaluate(str(ck), ["pick_place/bar->blue"], 1, seed=0, replan=1, data_dir=root, progress=False)
+    with EpisodeStore(root) as store:
+        (row,) = store.catalog.rollouts()
+        plans = np.load(os.path.join(row.path, "plans.npz"))
+    assert len(plans["plan_start_ticks"]) == 2
+    for i in range(2):
+        assert bool(plans[f"plan{i}_guided"]) and float(plans[f"plan{i}_guidance_gain"]) < 100
+        assert float(plans[f"plan{i}_guidance_surprise"]) > 0
 
 
 def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_path):

@@ -9,9 +9,12 @@ import sys
 from pathlib import Path
 
 
-def write_tiny_checkpoint(path: str | Path, seed: int = 0, guidance: float = 1.0) -> Path:
+def write_tiny_checkpoint(
+    path: str | Path, seed: int = 0, guidance: float = 1.0, planning: tuple[str, ...] = ()
+) -> Path:
     """Write an untrained small model (seeded weights) to ``path``, creating its directory; returns the path.
-    ``guidance`` ≠ 1 writes a policy that plans with demonstration guidance."""
+    ``guidance`` ≠ 1 writes a policy that plans with demonstration guidance; ``planning`` adds ``model.FIELD=VALUE``
+    planning settings (its gates)."""
     import torch
 
     from studio.bench.synthetic_task import tiny_run_config
@@ -22,7 +25,7 @@ def write_tiny_checkpoint(path: str | Path, seed: int = 0, guidance: float = 1.0
     torch.manual_seed(seed)
     run = tiny_run_config()  # the model the synthetic benchmark trains, untrained here
     if guidance != 1.0:
-        run = run.with_overrides([f"model.guidance={guidance}", "train.demo_dropout=0.2"])
+        run = run.with_overrides([f"model.guidance={guidance}", "train.demo_dropout=0.2", *planning])
     model = run.model
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save(

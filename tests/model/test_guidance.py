@@ -11,7 +11,7 @@ from synthetic_pairs import SyntheticPairs, tiny_run_config
 from studio.model.batching import collate_pairs
 from studio.model.checkpoint import load_checkpoint
 from studio.model.config import ModelConfig, TrainConfig
-from studio.model.guidance import demonstration_gain, drop_demonstrations, guide
+from studio.model.guidance import demonstration_gain, demonstration_surprise, drop_demonstrations, guide
 from studio.model.osvi_wm import OSVIWM
 from studio.model.planner import Planner
 from studio.model.policy_export import export_policy
@@ -141,9 +141,14 @@ def test_the_gain_is_the_null_predictions_error_over_the_demonstrations_on_the_d
         ]
     assert errors[0] != errors[1]
     assert gain == pytest.approx(errors[0] / errors[1], rel=1e-6)
+    # the surprise is the error with the demonstration: the gain's denominator
+    with torch.no_grad():
+        assert demonstration_surprise(model, states, context) == pytest.approx(errors[1], rel=1e-6)
     without_wm = OSVIWM(tiny_run_config().with_overrides(["model.world_model=false"]).model)
     with pytest.raises(ValueError, match="needs the world model"):
         demonstration_gain(without_wm, states, context, null_context)
+    with pytest.raises(ValueError, match="needs the world model"):
+        demonstration_surprise(without_wm, states, context)
 
 
 def _gated(gate: float, weights: dict) -> Planner:
@@ -263,3 +268,57 @@ def test_a_guided_branch_plans_the_guided_demonstrations_and_the_policys_own_wei
     wider = OSVIWM(tiny_run_config().with_overrides(["model.max_waypoints=7"]).model)
     with pytest.raises(ValueError, match=r"network differs in model\.max_waypoints"):
         Planner(net(own, 1.1), guided_model=wider)
+
+
+def test_a_surprise_gate_guides_with_the_policys_own_weights_the_demonstrations_the_gate_leaves(tmp_path):
+    torch.manual_seed(0)
+    own = OSVIWM(tiny_run_config().model).state_dict()
+    branch = _branch_weights(own, 1)
+    data = SyntheticPairs()
+    expert, agent, K = data[0]["expert_frames"], data[0]["agent_frames"][0], data[0]["K"]
+    own_alone = _planner(1.0, own).plan(expert, agent, K, np.eye(4))
+    own_guided = _planner(4.0, own).plan(expert, agent, K, np.eye(4))
+    branch_guided = _planner(4.0, branch).plan(expert, agent, K, np.eye(4))
+    gain = branch_guided.guidance_gain
+    assert gain is not None and own_guided.guidance_surprise is None  # no surprise gate, no surprise
+
+    def two(gate: float, surprise_gate: float) -> Planner:
+        nets = []
+        for weights in (own, branch):
+            run = tiny_run_config().with_overrides(
+                ["model.guidance=4.0", f"model.guidance_gate={gate}", f"model.surprise_gate={surprise_gate}"]
+            )
+            nets.append(OSVIWM(run.model))
+            nets[-1].load_state_dict(weights)
+        return Planner(nets[0], guided_model=nets[1])
+
+    # the surprise is the policy's own weights', as read for the export's percentile
+    surprise = two(gain * 1.01, 1.0).plan(expert, agent, K, np.eye(4)).guidance_surprise
+    assert surprise is not None and surprise > 0
+    assert two(gain * 1.01, 1.0).demonstration_surprise(expert) == pytest.approx(surprise)
+    # below the gate, at or above the surprise gate: guided by the policy's own weights, not the branch's
+    surprised = two(gain * 1.01, surprise * 0.99).plan(expert, agent, K, np.eye(4))
+    assert surprised.guided and surprised.guidance_surprise == pytest.approx(surprise)
+    assert np.allclose(surprised.waypoints_world, own_guided.waypoints_world, atol=1e-6)
+    assert np.allclose(surprised.null_waypoints_world, own_guided.null_waypoints_world, atol=1e-6)
+    # below both: the demonstration's plan alone
+    calm = two(gain * 1.01, surprise * 1.01).plan(expert, agent, K, np.eye(4))
+    assert not calm.guided and np.allclose(calm.waypoints_world, own_alone.waypoints_world, atol=1e-6)
+    # reaching the gate: the branch's, whatever the surprise
+    reached = two(gain * 0.99, surprise * 0.99).plan(expert, agent, K, np.eye(4))
+    assert reached.guided and np.allclose(reached.waypoints_world, branch_guided.waypoints_world, atol=1e-6)
+    assert np.abs(reached.waypoints_world - surprised.waypoints_world).max() > 1e-3
+
+    with pytest.raises(ValueError, match="surprise_gate must be"):
+        ModelConfig(image_size=(32, 32), surprise_gate=-1.0)
+    with pytest.raises(ValueError, match="needs the world model"):
+        ModelConfig(image_size=(32, 32), surprise_gate=5.0, world_model=False)
+    run = tiny_run_config(max_steps=1, batch_size=4, val_every=100).with_overrides(["train.demo_dropout=0.5"])
+    train(run, SyntheticPairs(), None, tmp_path / "run", show_progress=False)
+    export_policy(
+        tmp_path / "run" / "last.pt", tmp_path / "p.pt", guidance=5.0, guidance_gate=1.04, surprise_gate=7.5
+    )
+    assert Planner.load(tmp_path / "p.pt").cfg.surprise_gate == 7.5
+    with pytest.raises(ValueError, match="surprise gate without guidance does nothing"):
+        export_policy(tmp_path / "run" / "last.pt", tmp_path / "bad.pt", surprise_gate=7.5)
+    assert not (tmp_path / "bad.pt").exists()

@@ -81,7 +81,10 @@ def test_export_command_reports_bad_input(trained, tmp_path, capsys):
 def test_the_gate_percentile_is_read_off_the_training_tasks_stored_demonstrations(tmp_path):
     from studio.data.collect import CollectConfig, collect
     from studio.data.store import EpisodeStore
-    from studio.model.policy_export import gate_from_training_demonstrations
+    from studio.model.policy_export import (
+        gate_from_training_demonstrations,
+        surprise_gate_from_training_demonstrations,
+    )
 
     run = tiny_run_config(max_steps=1, batch_size=4, val_every=100).with_overrides(["train.demo_dropout=0.5"])
     train(run, SyntheticPairs(), None, tmp_path / "run", show_progress=False)
@@ -130,6 +133,19 @@ def test_the_gate_percentile_is_read_off_the_training_tasks_stored_demonstration
     assert gate_from_training_demonstrations(tmp_path / "own.pt", data, 100)[0] != pytest.approx(max(gains))
     with pytest.raises(ValueError, match="percentile must be"):
         gate_from_training_demonstrations(named, data, 0)
+    # the surprise gate: the same percentile of the training demonstrations' surprises, read by the policy's own
+    # weights (not the branch's)
+    mine = Planner.load(tmp_path / "own.pt")
+    with EpisodeStore(data) as store:
+        surprises = [mine.demonstration_surprise(store.load_frames(m.id)) for m in training]
+    assert surprise_gate_from_training_demonstrations(tmp_path / "own.pt", data, 50) == (
+        pytest.approx(float(np.mean(surprises))),
+        2,
+    )
+    three = [*two[:2], "--guidance", "5", "--gate-percentile", "100", "--surprise-percentile", "100"]
+    assert main(["export-policy", *three, "--data", str(data), "--guided-from", str(named)]) == 0
+    assert Planner.load(tmp_path / "two.pt").cfg.surprise_gate == pytest.approx(max(surprises))
+    assert main(["export-policy", *three, "--surprise-gate", "3", "--data", str(data)]) == 2
     ckpt["tasks"] = ["pick_place/bar->yellow"]
     torch.save(ckpt, named)
     with pytest.raises(ValueError, match="no expert demonstration"):

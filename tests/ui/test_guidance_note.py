@@ -28,3 +28,22 @@ def test_a_plan_below_the_gate_says_it_is_the_demonstrations_alone():
     assert "not guided: demonstration gain 0.985 is below the policy's gate 1.04" in text
     assert "moved" not in text and text.endswith("the plan is the demonstration's alone.")
     assert "below the policy's gate," in guidance_note({"gain": 0.9, "guided": False})
+
+
+def test_a_plan_guided_by_the_surprise_gate_says_so_and_one_below_both_gates_names_both():
+    guided = guidance_note(
+        {"scale": 5.0, "gate": 1.2, "gain": 1.037, "guided": True, "surprise": 8.731, "surprise_gate": 7.55},
+        0.41,
+    )
+    assert guided.endswith(
+        "guidance 5 moved the plan up to 0.41 m from it (demonstration gain 1.037 is below the gate, but the world "
+        "model's surprise at it is 8.73 ≥ 7.55)."
+    )
+    calm = guidance_note(
+        {"scale": 5.0, "gate": 1.2, "gain": 1.037, "guided": False, "surprise": 6.2, "surprise_gate": 7.55}
+    )
+    assert "below the policy's gate 1.2, and its surprise 6.20 below the surprise gate 7.55" in calm
+    # a stored rollout keeps the gain and the surprise, not the gates
+    assert guidance_note({"gain": 1.037, "guided": True, "surprise": 8.731}).endswith(
+        "(demonstration gain 1.037; surprise 8.73)."
+    )

@@ -277,11 +277,14 @@ class InspectorPanel:
             text += f" Plan {k + 1} of {len(starts)} (from step {int(starts[k])})."
             if null is not None and wps is not None:
                 gain = self.plans.get(f"plan{k}_guidance_gain")
+                surprise = self.plans.get(f"plan{k}_guidance_surprise")
                 moved = float(np.linalg.norm(np.asarray(wps)[:, :3] - np.asarray(null)[:, :3], axis=1).max())
                 guidance = {
                     "guided": bool(self.plans.get(f"plan{k}_guided", True)),
                     "gain": None if gain is None else float(gain),
                 }
+                if surprise is not None:
+                    guidance["surprise"] = float(surprise)
                 text += guidance_note(guidance, moved)
             lat = self.latents.get(k)
             if lat is not None and len(lat):
