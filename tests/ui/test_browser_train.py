@@ -91,6 +91,15 @@ def test_fine_tune_without_pairs_says_what_to_record_before_anything_queues(stud
     page.get_by_text("0 training pairs").filter(visible=True).first.wait_for(timeout=30_000)
     before = len(_train_jobs(studio))
     ui.click(page.get_by_role("button", name="Fine-tune the active policy on my episodes"))
+    # The note says what to record before any click ("Starts from …. No training pairs yet: …"); only the handled
+    # click marks it ✘. Waiting for the sentence alone let a click still on its way to the server through: it then
+    # arrived after the tasks below were chosen again and queued a fine-tune that held later tests' Start disabled.
+    ui.wait(
+        lambda: train.fine_tune_note.content.startswith("✘ No training pairs yet"),
+        30,
+        "the click to be refused",
+        lambda: _state(train),
+    )
     page.get_by_text(
         "record a successful demonstration (Sawyer or hand) and a successful agent (Panda)"
     ).filter(visible=True).first.wait_for(timeout=30_000)
