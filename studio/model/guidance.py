@@ -112,8 +112,6 @@ def demonstration_gain(
     ``context`` and ``null_context`` are π's caches of the demonstration and of the null one; returns
     ``prediction_error`` through the null context over that through the demonstration's.
     """
-    if model.world_model is None:
-        raise ValueError("the demonstration gain needs the world model (ModelConfig.world_model)")
     return prediction_error(model, expert_states, null_context) / max(
         prediction_error(model, expert_states, context), 1e-12
     )
@@ -122,6 +120,4 @@ def demonstration_gain(
 def demonstration_surprise(model: OSVIWM, expert_states: torch.Tensor, context: KVCache) -> float:
     """How badly the world model predicts the demonstration's own video even with it: ``prediction_error`` through
     the demonstration's context (the gain's denominator)."""
-    if model.world_model is None:
-        raise ValueError("the demonstration's surprise needs the world model (ModelConfig.world_model)")
     return prediction_error(model, expert_states, context)

@@ -219,9 +219,7 @@ class Planner:
         guided branch when there is one); used to set a policy's gate from the training demonstrations
         (``studio export-policy --gate-percentile``)."""
         judge = self._branch(True)
-        expert = self._expert_input(expert_frames)
-        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
-            encoded = self.model.encode(expert).float()
+        expert, encoded = self._encode_demonstration(expert_frames)
         context = judge.action_model.context(encoded.unsqueeze(0))
         return demonstration_gain(judge, encoded, context, self._null_context_for(expert, True))
 
@@ -230,11 +228,17 @@ class Planner:
         """The demonstration's surprise (``guidance.demonstration_surprise``) as the policy's own weights read it,
         which is how a plan compares it with the surprise gate; used to set that gate from the training
         demonstrations (``studio export-policy --surprise-percentile``)."""
-        expert = self._expert_input(expert_frames)
-        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
-            encoded = self.model.encode(expert).float()
+        _, encoded = self._encode_demonstration(expert_frames)
         context = self.model.action_model.context(encoded.unsqueeze(0))
         return demonstration_surprise(self.model, encoded, context)
+
+    def _encode_demonstration(
+        self, expert_frames: np.ndarray | torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The demonstration as the model takes it, and its encoded frames (float32)."""
+        expert = self._expert_input(expert_frames)
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
+            return expert, self.model.encode(expert).float()
 
     def _plan_without_demonstration(
         self, expert: torch.Tensor, agent_state: torch.Tensor, guided: bool

@@ -35,7 +35,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -157,7 +157,7 @@ def surprise_gate_from_training_demonstrations(
 
 
 def _training_percentile(
-    checkpoint: str | Path, data_dir: str | Path, percentile: float, measure: str
+    checkpoint: str | Path, data_dir: str | Path, percentile: float, measure: Literal["gain", "surprise"]
 ) -> tuple[float, int]:
     from studio.data.store import EpisodeStore
     from studio.model.planner import Planner

@@ -72,11 +72,15 @@ def test_demo_dropout_and_guidance_are_checked():
         ModelConfig(image_size=(32, 32), guidance=-1.0)
 
 
-def _planner(guidance: float, weights: dict) -> Planner:
-    run = tiny_run_config().with_overrides([f"model.guidance={guidance}"])
-    model = OSVIWM(run.model)
+def _net(weights: dict, *settings: str) -> OSVIWM:
+    """The tiny network with ``weights`` and the ``model.FIELD=VALUE`` planning ``settings``."""
+    model = OSVIWM(tiny_run_config().with_overrides(list(settings)).model)
     model.load_state_dict(weights)
-    return Planner(model)
+    return model
+
+
+def _planner(guidance: float, weights: dict) -> Planner:
+    return Planner(_net(weights, f"model.guidance={guidance}"))
 
 
 def test_a_guided_plan_extrapolates_from_the_null_plan_through_the_demonstrations():
@@ -152,10 +156,7 @@ def test_the_gain_is_the_null_predictions_error_over_the_demonstrations_on_the_d
 
 
 def _gated(gate: float, weights: dict) -> Planner:
-    run = tiny_run_config().with_overrides(["model.guidance=4.0", f"model.guidance_gate={gate}"])
-    model = OSVIWM(run.model)
-    model.load_state_dict(weights)
-    return Planner(model)
+    return Planner(_net(weights, "model.guidance=4.0", f"model.guidance_gate={gate}"))
 
 
 def test_a_gated_policy_guides_only_demonstrations_whose_gain_reaches_the_gate(monkeypatch):
@@ -219,12 +220,16 @@ def _branch_weights(weights: dict, seed: int) -> dict:
     }
 
 
-def test_a_guided_branch_plans_the_guided_demonstrations_and_the_policys_own_weights_the_rest():
+def _own_branch_and_scene() -> tuple[dict, dict, np.ndarray, np.ndarray, np.ndarray]:
+    """A policy's weights, a guided branch's on the same encoder, and a demonstration, agent frame and K."""
     torch.manual_seed(0)
     own = OSVIWM(tiny_run_config().model).state_dict()
-    branch = _branch_weights(own, 1)
     data = SyntheticPairs()
-    expert, agent, K = data[0]["expert_frames"], data[0]["agent_frames"][0], data[0]["K"]
+    return own, _branch_weights(own, 1), data[0]["expert_frames"], data[0]["agent_frames"][0], data[0]["K"]
+
+
+def test_a_guided_branch_plans_the_guided_demonstrations_and_the_policys_own_weights_the_rest():
+    own, branch, expert, agent, K = _own_branch_and_scene()
     branch_alone = _planner(4.0, branch).plan(expert, agent, K, np.eye(4))
     own_alone = _planner(1.0, own).plan(expert, agent, K, np.eye(4))
     own_gain = _planner(4.0, own).plan(expert, agent, K, np.eye(4)).guidance_gain
@@ -232,10 +237,7 @@ def test_a_guided_branch_plans_the_guided_demonstrations_and_the_policys_own_wei
     assert gain is not None and own_gain is not None and abs(gain - own_gain) > 1e-4
 
     def net(weights: dict, gate: float, guidance: float = 4.0) -> OSVIWM:
-        run = tiny_run_config().with_overrides([f"model.guidance={guidance}", f"model.guidance_gate={gate}"])
-        model = OSVIWM(run.model)
-        model.load_state_dict(weights)
-        return model
+        return _net(weights, f"model.guidance={guidance}", f"model.guidance_gate={gate}")
 
     def two(gate: float) -> Planner:
         return Planner(net(own, gate), guided_model=net(branch, gate))
@@ -271,11 +273,7 @@ def test_a_guided_branch_plans_the_guided_demonstrations_and_the_policys_own_wei
 
 
 def test_a_surprise_gate_guides_with_the_policys_own_weights_the_demonstrations_the_gate_leaves(tmp_path):
-    torch.manual_seed(0)
-    own = OSVIWM(tiny_run_config().model).state_dict()
-    branch = _branch_weights(own, 1)
-    data = SyntheticPairs()
-    expert, agent, K = data[0]["expert_frames"], data[0]["agent_frames"][0], data[0]["K"]
+    own, branch, expert, agent, K = _own_branch_and_scene()
     own_alone = _planner(1.0, own).plan(expert, agent, K, np.eye(4))
     own_guided = _planner(4.0, own).plan(expert, agent, K, np.eye(4))
     branch_guided = _planner(4.0, branch).plan(expert, agent, K, np.eye(4))
@@ -283,14 +281,12 @@ def test_a_surprise_gate_guides_with_the_policys_own_weights_the_demonstrations_
     assert gain is not None and own_guided.guidance_surprise is None  # no surprise gate, no surprise
 
     def two(gate: float, surprise_gate: float) -> Planner:
-        nets = []
-        for weights in (own, branch):
-            run = tiny_run_config().with_overrides(
-                ["model.guidance=4.0", f"model.guidance_gate={gate}", f"model.surprise_gate={surprise_gate}"]
-            )
-            nets.append(OSVIWM(run.model))
-            nets[-1].load_state_dict(weights)
-        return Planner(nets[0], guided_model=nets[1])
+        settings = (
+            "model.guidance=4.0",
+            f"model.guidance_gate={gate}",
+            f"model.surprise_gate={surprise_gate}",
+        )
+        return Planner(_net(own, *settings), guided_model=_net(branch, *settings))
 
     # the surprise is the policy's own weights', as read for the export's percentile
     surprise = two(gain * 1.01, 1.0).plan(expert, agent, K, np.eye(4)).guidance_surprise
