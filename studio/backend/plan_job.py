@@ -141,7 +141,7 @@ def run_plan_job(ctx) -> dict[str, Any]:
         gain = getattr(plan, "guidance_gain", None)
         surprise = getattr(plan, "guidance_surprise", None)
         guidance = {
-            "scale": float(cfg.guidance),
+            "scale": float(getattr(plan, "guidance_scale", None) or cfg.guidance),
             "gate": float(cfg.guidance_gate),
             "gain": None if gain is None else float(gain),
             "guided": bool(getattr(plan, "guided", True)),

@@ -85,6 +85,8 @@ class PlanRecord:
     #: with a surprise gate: the demonstration's surprise (``PlanResult``).
     guidance_surprise: float | None = None
     guided: bool = False
+    #: the guidance that made a guided plan (``PlanResult.guidance_scale``); None when not guided.
+    guidance_scale: float | None = None
 
 
 @dataclass
@@ -204,6 +206,7 @@ def run_rollout(
                 guidance_gain=getattr(result, "guidance_gain", None),
                 guidance_surprise=getattr(result, "guidance_surprise", None),
                 guided=bool(getattr(result, "guided", False)),
+                guidance_scale=getattr(result, "guidance_scale", None),
             )
         )
         event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
@@ -280,6 +283,8 @@ def store_rollout(
                 arrays[f"plan{i}_guidance_gain"] = np.array(p.guidance_gain)
             if p.guidance_surprise is not None:
                 arrays[f"plan{i}_guidance_surprise"] = np.array(p.guidance_surprise)
+            if p.guidance_scale is not None:
+                arrays[f"plan{i}_guidance_scale"] = np.array(p.guidance_scale)
         arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
         arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
         np.savez_compressed(tmp / "plans.npz", allow_pickle=False, **arrays)

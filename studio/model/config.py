@@ -98,6 +98,10 @@ class ModelConfig:
             ``guidance.demonstration_surprise`` (how badly the world model predicts the demonstration's video even
             with it) reaches this, whatever their gain. 0 turns it off. Needs guidance ≠ 1 and the world model; a
             planning setting (``studio export-policy --surprise-gate``).
+        surprise_guidance: the guidance of the plans the surprise gate guides; 0 uses ``guidance``. Those plans
+            come from the policy's own weights, the gate's from its guided branch, and each set of weights
+            extrapolates its plans best at its own scale. Needs a surprise gate; a planning setting
+            (``studio export-policy --surprise-guidance``).
     """
 
     image_size: tuple[int, int] = (240, 320)
@@ -135,6 +139,7 @@ class ModelConfig:
     guidance: float = 1.0
     guidance_gate: float = 0.0
     surprise_gate: float = 0.0
+    surprise_guidance: float = 0.0
 
     def __post_init__(self) -> None:
         # JSON gives lists where the fields hold tuples; image_size's length is checked below
@@ -173,6 +178,17 @@ class ModelConfig:
             raise ValueError(f"surprise_gate must be >= 0, got {self.surprise_gate}")
         if self.surprise_gate > 0.0 and not self.world_model:
             raise ValueError("surprise_gate needs the world model: the surprise is read from its predictions")
+        if not 0.0 <= self.surprise_guidance <= 10.0:
+            raise ValueError(f"surprise_guidance must be in [0, 10], got {self.surprise_guidance}")
+        if self.surprise_guidance > 0.0 and self.surprise_gate == 0.0:
+            raise ValueError(
+                "surprise_guidance without a surprise_gate does nothing: it scales that gate's plans"
+            )
+
+    @property
+    def surprise_scale(self) -> float:
+        """The guidance of a plan the surprise gate guides: ``surprise_guidance``, or ``guidance`` when 0."""
+        return self.surprise_guidance or self.guidance
 
     @property
     def waypoint_rows(self) -> int:
@@ -191,7 +207,7 @@ class ModelConfig:
 FREEZABLE = ("encoder", "action_model", "world_model", "temporal_pool", "head", "demo_task_head")
 
 
-PLANNING_FIELDS = ("guidance", "guidance_gate", "surprise_gate")
+PLANNING_FIELDS = ("guidance", "guidance_gate", "surprise_gate", "surprise_guidance")
 """``ModelConfig`` fields that change only how a trained model is planned (set by ``studio export-policy``): a run
 started from a policy file (``--init``) takes them from its own configuration, not from the file."""
 

@@ -25,7 +25,8 @@ A policy file with a guided branch (``studio export-policy --guided-from``; ``gu
 weights for π, 𝒲 and the waypoint head, on the same encoder: the branch computes the gain, and plans (guided) the
 demonstrations that reach the gate; the policy's own weights plan the others, unguided. The frames are encoded once.
 A policy with a surprise gate (``ModelConfig.surprise_gate``) also guides, with its own weights, the demonstrations
-below the gate whose surprise (``guidance.demonstration_surprise``, read by its own weights) reaches that gate.
+below the gate whose surprise (``guidance.demonstration_surprise``, read by its own weights) reaches that gate, at
+its own scale (``ModelConfig.surprise_guidance``) when it has one.
 """
 
 from __future__ import annotations
@@ -70,6 +71,8 @@ class PlanResult:
         guidance_surprise: with a surprise gate, the demonstration's surprise as the policy's own weights read it
             (``guidance.demonstration_surprise``); else None.
         guided: whether the returned plan is the guided one (False without guidance, or below both gates).
+        guidance_scale: the guidance that made the returned plan (``ModelConfig.guidance``, or
+            ``surprise_scale`` for a plan the surprise gate guided); None when it is not guided.
     """
 
     waypoints_world: np.ndarray
@@ -82,6 +85,7 @@ class PlanResult:
     guidance_gain: float | None = None
     guidance_surprise: float | None = None
     guided: bool = False
+    guidance_scale: float | None = None
 
     @property
     def gripper_closed(self) -> np.ndarray:
@@ -307,12 +311,13 @@ class Planner:
         t3 = time.perf_counter()
         raw = net.predict_waypoints(pooled)
         K_dev, T_dev = K_model[None].to(self.device), torch.as_tensor(T, device=self.device)[None]
-        null_world = None
+        null_world, scale = None, None
         if self.cfg.guidance != 1.0:
             null_raw = self._plan_without_demonstration(expert, agent_state, guided)
             null_world = torch.cat(self._waypoints(null_raw, K_dev, T_dev)[1:], 1).cpu().numpy()
             if guided or surprised:
-                raw = guide(raw, null_raw, self.cfg.guidance)
+                scale = self.cfg.guidance if guided else self.cfg.surprise_scale
+                raw = guide(raw, null_raw, scale)
         p_cam, p_world, grip = self._waypoints(raw, K_dev, T_dev)
         t4 = time.perf_counter()
         ms = {
@@ -333,6 +338,7 @@ class Planner:
             guidance_gain=self._gain,  # computed only with guidance
             guidance_surprise=self._surprise,  # computed only with a surprise gate
             guided=guided or surprised,
+            guidance_scale=scale,
         )
 
     def _waypoints(

@@ -2,7 +2,7 @@
 
     studio export-policy RUN_DIR/best.pt OUT.pt [--decoder DECODER_DIR/best.pt] [--fp32] [--guidance G]
         [--guidance-gate GAIN | --gate-percentile P --data DATA_DIR] [--guided-from CHECKPOINT]
-        [--surprise-gate S | --surprise-percentile P --data DATA_DIR]
+        [--surprise-gate S | --surprise-percentile P --data DATA_DIR] [--surprise-guidance G]
 
 The policy file keeps everything planning needs — the checkpoint format, full configuration, dataset
 fingerprint, trained tasks, step — and drops the optimiser and scheduler state (two thirds of a training
@@ -60,10 +60,11 @@ def export_policy(
     guidance_gate: float | None = None,
     guided_from: str | Path | None = None,
     surprise_gate: float | None = None,
+    surprise_guidance: float | None = None,
 ) -> dict[str, int]:
     """Write the policy (and decoder) files; returns their sizes in bytes. ``guidance`` and ``guidance_gate``
-    set the policy's demonstration guidance and its gate, ``surprise_gate`` its surprise gate (``ModelConfig``; None
-    keeps the checkpoint's);
+    set the policy's demonstration guidance and its gate, ``surprise_gate`` its surprise gate and
+    ``surprise_guidance`` that gate's scale (``ModelConfig``; None keeps the checkpoint's);
     ``guided_from`` the checkpoint of its guided branch (module docstring)."""
     from studio.model.checkpoint import (
         GUIDED_WEIGHTS,
@@ -87,6 +88,7 @@ def export_policy(
             ("guidance", guidance),
             ("guidance_gate", guidance_gate),
             ("surprise_gate", surprise_gate),
+            ("surprise_guidance", surprise_guidance),
         )
         if v is not None
     ]
@@ -221,6 +223,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="set the surprise gate to this percentile of the surprises of the training tasks' stored "
         "demonstrations, read by the policy's own weights (needs --data; instead of --surprise-gate)",
     )
+    parser.add_argument(
+        "--surprise-guidance",
+        type=float,
+        help="the guidance of the plans the surprise gate guides (ModelConfig.surprise_guidance; 0: --guidance's)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -254,6 +261,7 @@ def run(args: argparse.Namespace) -> int:
             guidance_gate=args.guidance_gate,
             guided_from=args.guided_from,
             surprise_gate=args.surprise_gate,
+            surprise_guidance=args.surprise_guidance,
         )
     except (FileNotFoundError, ValueError) as e:
         print(f"studio export-policy: {e}", file=sys.stderr)

@@ -64,6 +64,18 @@ def test_scripted_demo_then_oracle_plan(hub, workers, tmp_path):
     assert guided_plan["null_waypoints_world"].shape == guided_plan["waypoints_world"].shape == (5, 4)
     info = guided_result["guidance"]
     assert (info["scale"], info["gate"], info["guided"]) == (3.0, 0.0, True) and info["gain"] > 0
+    # one the surprise gate guided reports that gate's own scale
+    surprised = write_tiny_checkpoint(
+        root / "runs" / "surprised" / "best.pt",
+        guidance=3.0,
+        planning=("model.guidance_gate=100", "model.surprise_gate=1e-6", "model.surprise_guidance=2"),
+    )
+    info = _succeeded(
+        client, "plan", {"checkpoint": str(surprised), "expert_episode_id": episode, "task": TASK, "seed": 3}
+    )["guidance"]
+    assert (info["scale"], info["guided"], info["surprise_gate"]) == (2.0, True, 1e-6) and info[
+        "surprise"
+    ] > 0
 
     bad = client.submit(
         "plan",

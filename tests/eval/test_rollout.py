@@ -206,6 +206,8 @@ def test_a_guided_policys_rollouts_keep_the_null_plan_beside_each_plan(tmp_path)
         # ungated, every plan is guided; the demonstration's gain is stored with each
         assert bool(guided[f"plan{i}_guided"]) and float(guided[f"plan{i}_guidance_gain"]) > 0
         assert f"plan{i}_guidance_surprise" not in guided  # no surprise gate, no surprise
+        assert float(guided[f"plan{i}_guidance_scale"]) == 3.0
+    assert not [k for k in plain if "scale" in k]
 
 
 def test_a_surprise_gated_policys_rollouts_store_the_surprise_that_guided_them(tmp_path):
@@ -215,7 +217,7 @@ def test_a_surprise_gated_policys_rollouts_store_the_surprise_that_guided_them(t
     ck = write_tiny_checkpoint(
         tmp_path / "p" / "best.pt",
         guidance=3.0,
-        planning=("model.guidance_gate=100", "model.surprise_gate=1e-6"),
+        planning=("model.guidance_gate=100", "model.surprise_gate=1e-6", "model.surprise_guidance=2"),
     )
     evaluate(str(ck), ["pick_place/bar->blue"], 1, seed=0, replan=1, data_dir=root, progress=False)
     with EpisodeStore(root) as store:
@@ -225,6 +227,7 @@ def test_a_surprise_gated_policys_rollouts_store_the_surprise_that_guided_them(t
     for i in range(2):
         assert bool(plans[f"plan{i}_guided"]) and float(plans[f"plan{i}_guidance_gain"]) < 100
         assert float(plans[f"plan{i}_guidance_surprise"]) > 0
+        assert float(plans[f"plan{i}_guidance_scale"]) == 2.0  # the surprise gate's own scale
 
 
 def test_a_smaller_replan_budget_is_the_larger_budgets_rollouts_cut_short(tmp_path):

@@ -280,11 +280,12 @@ def test_a_surprise_gate_guides_with_the_policys_own_weights_the_demonstrations_
     gain = branch_guided.guidance_gain
     assert gain is not None and own_guided.guidance_surprise is None  # no surprise gate, no surprise
 
-    def two(gate: float, surprise_gate: float) -> Planner:
+    def two(gate: float, surprise_gate: float, *more: str) -> Planner:
         settings = (
             "model.guidance=4.0",
             f"model.guidance_gate={gate}",
             f"model.surprise_gate={surprise_gate}",
+            *more,
         )
         return Planner(_net(own, *settings), guided_model=_net(branch, *settings))
 
@@ -297,9 +298,21 @@ def test_a_surprise_gate_guides_with_the_policys_own_weights_the_demonstrations_
     assert surprised.guided and surprised.guidance_surprise == pytest.approx(surprise)
     assert np.allclose(surprised.waypoints_world, own_guided.waypoints_world, atol=1e-6)
     assert np.allclose(surprised.null_waypoints_world, own_guided.null_waypoints_world, atol=1e-6)
+    assert surprised.guidance_scale == own_guided.guidance_scale == 4.0
+    # ... at the surprise gate's own scale when it has one; the gate's plans keep theirs
+    own_at_2 = _planner(2.0, own).plan(expert, agent, K, np.eye(4))
+    at_2 = two(gain * 1.01, surprise * 0.99, "model.surprise_guidance=2").plan(expert, agent, K, np.eye(4))
+    assert at_2.guided and at_2.guidance_scale == 2.0
+    assert np.allclose(at_2.waypoints_world, own_at_2.waypoints_world, atol=1e-6)
+    assert np.abs(at_2.waypoints_world - surprised.waypoints_world).max() > 1e-3
+    gated = two(gain * 0.99, surprise * 0.99, "model.surprise_guidance=2").plan(expert, agent, K, np.eye(4))
+    assert gated.guidance_scale == 4.0 and np.allclose(
+        gated.waypoints_world, branch_guided.waypoints_world, atol=1e-6
+    )
     # below both: the demonstration's plan alone
     calm = two(gain * 1.01, surprise * 1.01).plan(expert, agent, K, np.eye(4))
     assert not calm.guided and np.allclose(calm.waypoints_world, own_alone.waypoints_world, atol=1e-6)
+    assert calm.guidance_scale is None
     # reaching the gate: the branch's, whatever the surprise
     reached = two(gain * 0.99, surprise * 0.99).plan(expert, agent, K, np.eye(4))
     assert reached.guided and np.allclose(reached.waypoints_world, branch_guided.waypoints_world, atol=1e-6)
@@ -309,12 +322,20 @@ def test_a_surprise_gate_guides_with_the_policys_own_weights_the_demonstrations_
         ModelConfig(image_size=(32, 32), surprise_gate=-1.0)
     with pytest.raises(ValueError, match="needs the world model"):
         ModelConfig(image_size=(32, 32), surprise_gate=5.0, world_model=False)
+    with pytest.raises(ValueError, match="surprise_guidance must be in"):
+        ModelConfig(image_size=(32, 32), guidance=5.0, surprise_gate=7.0, surprise_guidance=11.0)
+    with pytest.raises(ValueError, match="surprise_guidance without a surprise_gate"):
+        ModelConfig(image_size=(32, 32), guidance=5.0, surprise_guidance=3.0)
     run = tiny_run_config(max_steps=1, batch_size=4, val_every=100).with_overrides(["train.demo_dropout=0.5"])
     train(run, SyntheticPairs(), None, tmp_path / "run", show_progress=False)
     export_policy(
         tmp_path / "run" / "last.pt", tmp_path / "p.pt", guidance=5.0, guidance_gate=1.04, surprise_gate=7.5
     )
     assert Planner.load(tmp_path / "p.pt").cfg.surprise_gate == 7.5
+    # a later re-export sets the surprise gate's own scale and keeps the rest
+    export_policy(tmp_path / "p.pt", tmp_path / "p3.pt", surprise_guidance=3.0)
+    cfg = Planner.load(tmp_path / "p3.pt").cfg
+    assert (cfg.guidance, cfg.surprise_gate, cfg.surprise_scale) == (5.0, 7.5, 3.0)
     with pytest.raises(ValueError, match="surprise gate without guidance does nothing"):
         export_policy(tmp_path / "run" / "last.pt", tmp_path / "bad.pt", surprise_gate=7.5)
     assert not (tmp_path / "bad.pt").exists()

@@ -9,7 +9,7 @@ from synthetic_pairs import SyntheticPairs, tiny_run_config
 
 from studio.cli import main
 from studio.eval.latents import find_decoder
-from studio.model.checkpoint import load_checkpoint
+from studio.model.checkpoint import GUIDED_WEIGHTS, load_checkpoint
 from studio.model.config import DecoderConfig
 from studio.model.planner import Planner
 from studio.model.policy_export import export_policy
@@ -146,6 +146,28 @@ def test_the_gate_percentile_is_read_off_the_training_tasks_stored_demonstration
     assert main(["export-policy", *three, "--data", str(data), "--guided-from", str(named)]) == 0
     assert Planner.load(tmp_path / "two.pt").cfg.surprise_gate == pytest.approx(max(surprises))
     assert main(["export-policy", *three, "--surprise-gate", "3", "--data", str(data)]) == 2
+    # the surprise gate's own scale, set by a later re-export that keeps the gates and the branch
+    scaled = [str(tmp_path / "two.pt"), str(tmp_path / "scaled.pt"), "--surprise-guidance", "3"]
+    assert main(["export-policy", *scaled]) == 0
+    cfg = Planner.load(tmp_path / "scaled.pt").cfg
+    assert (cfg.guidance, cfg.surprise_scale) == (5.0, 3.0)
+    assert cfg.surprise_gate == pytest.approx(max(surprises))
+    assert load_checkpoint(tmp_path / "scaled.pt").get(GUIDED_WEIGHTS) is not None
+    # ... and refused without a surprise gate to scale
+    assert (
+        main(
+            [
+                "export-policy",
+                str(tmp_path / "own.pt"),
+                str(tmp_path / "bad.pt"),
+                *two[2:4],
+                "--surprise-guidance",
+                "3",
+            ]
+        )
+        == 2
+    )
+    assert not (tmp_path / "bad.pt").exists()
     ckpt["tasks"] = ["pick_place/bar->yellow"]
     torch.save(ckpt, named)
     with pytest.raises(ValueError, match="no expert demonstration"):
@@ -153,7 +175,7 @@ def test_the_gate_percentile_is_read_off_the_training_tasks_stored_demonstration
 
 
 def test_a_guided_branch_is_written_without_its_encoder_and_planned_by_the_loaded_policy(tmp_path):
-    from studio.model.checkpoint import GUIDED_WEIGHTS, guided_model_from_checkpoint, model_from_checkpoint
+    from studio.model.checkpoint import guided_model_from_checkpoint, model_from_checkpoint
 
     dropped = tiny_run_config(max_steps=2, batch_size=4, val_every=100).with_overrides(
         ["train.demo_dropout=0.5"]

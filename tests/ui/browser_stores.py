@@ -53,6 +53,7 @@ def training_episodes_and_a_failed_rollout(root: Path) -> Path:
         out.plans[0].null_waypoints_world = out.plans[0].waypoints_world - np.array([0.12, 0.0, 0.0, 0.0])
         out.plans[0].guidance_gain, out.plans[0].guided = 1.6, True
         out.plans[0].guidance_surprise = 8.73  # as a policy with a surprise gate stores it
+        out.plans[0].guidance_scale = 3.0  # the scale that made the plan
         with store.catalog.transaction():
             store.catalog.add_run(RunRecord(id="fixture-run", status="done"))
             store.catalog.add_checkpoint(

@@ -53,7 +53,7 @@ def test_inspector_replays_a_stored_failed_rollout(studio, page, shots):
     assert ins.n_plans == 1  # the stored null plan is not counted as a plan of its own
     assert "null plan" in tab.view._overlays, "a guided rollout shows its plan from the scene alone"
     assert (
-        "guidance moved the plan up to 0.12 m from it (demonstration gain 1.600; surprise 8.73)"
+        "guidance 3 moved the plan up to 0.12 m from it (demonstration gain 1.600; surprise 8.73)"
         in ins.plan_info.content
     )
 

@@ -278,6 +278,7 @@ class InspectorPanel:
             if null is not None and wps is not None:
                 gain = self.plans.get(f"plan{k}_guidance_gain")
                 surprise = self.plans.get(f"plan{k}_guidance_surprise")
+                scale = self.plans.get(f"plan{k}_guidance_scale")
                 moved = float(np.linalg.norm(np.asarray(wps)[:, :3] - np.asarray(null)[:, :3], axis=1).max())
                 guidance = {
                     "guided": bool(self.plans.get(f"plan{k}_guided", True)),
@@ -285,6 +286,8 @@ class InspectorPanel:
                 }
                 if surprise is not None:
                     guidance["surprise"] = float(surprise)
+                if scale is not None:
+                    guidance["scale"] = float(scale)
                 text += guidance_note(guidance, moved)
             lat = self.latents.get(k)
             if lat is not None and len(lat):
