@@ -314,6 +314,7 @@ def store_demonstrations(store, checkpoint: str | os.PathLike) -> tuple[list[np.
     """The store's demonstrations to calibrate ``checkpoint`` with: of its training tasks (the reference) and of
     its scene's held-out tasks, by the embodiments it learnt from (every expert embodiment when it names none)."""
     from studio.data.splits import load_split
+    from studio.eval.evaluation import demonstration_order
     from studio.model.checkpoint_info import checkpoint_demonstrators, read_checkpoint_info, scene_of_tasks
 
     tasks = [str(t) for t in (read_checkpoint_info(checkpoint).get("tasks") or [])]
@@ -332,7 +333,9 @@ def store_demonstrations(store, checkpoint: str | os.PathLike) -> tuple[list[np.
             filters: dict[str, Any] = {"task": task, "role": "expert"}
             if embodiments:
                 filters["embodiment"] = embodiments
-            metas = sorted(store.episodes(**filters), key=lambda m: m.id)[:per_task]
+            # by what they are, not by when they were stored (ids carry the time): the same collection into
+            # another data directory calibrates the same
+            metas = sorted(store.episodes(**filters), key=demonstration_order)[:per_task]
             out += [store.load_frames(m.id) for m in metas]
         return out
 

@@ -208,3 +208,51 @@ def test_the_calibration_command_prints_its_figures(tmp_path, capsys):
     assert figures["reference_demonstrations"] == 3 and figures["held_out"] == 1
     assert figures["source"] == "held-out demonstrations" and Path(figures["out"]) == out
     assert ds.Calibration.load(out).threshold == pytest.approx(figures["threshold"])
+
+
+def test_the_demonstrations_calibrated_on_are_chosen_by_what_they_are_not_by_when_they_were_stored(
+    tiny_planner, tmp_path, monkeypatch
+):
+    import torch
+
+    from studio.data.episode import EpisodeMeta
+
+    path, _ = tiny_planner
+    ckpt = torch.load(path, weights_only=False)
+    ckpt["tasks"] = ["pick_place/cube->red"]
+    torch.save(ckpt, tmp_path / "named.pt")
+
+    class Store:
+        """Four scripted demonstrations of each task, stored in the reverse of their collection slots."""
+
+        def episodes(self, task, role, embodiment=None):
+            return [
+                EpisodeMeta(
+                    id=f"{9 - i}-{task}",
+                    task=task,
+                    role=role,
+                    embodiment="sawyer",
+                    scene="pick_place",
+                    source="scripted",
+                    seed=100 + i,
+                    success=True,
+                    created=1e9 - i,
+                    num_frames=12,
+                    num_steps=40,
+                    height=48,
+                    width=64,
+                    fps=10.0,
+                    collect_seed=0,
+                    collect_index=i,
+                )
+                for i in range(4)
+            ]
+
+        def load_frames(self, episode_id):
+            return episode_id
+
+    monkeypatch.setattr(ds, "REFERENCE_PER_TASK", 2)
+    monkeypatch.setattr(ds, "HELD_OUT_PER_TASK", 1)
+    reference, held_out = ds.store_demonstrations(Store(), tmp_path / "named.pt")
+    assert reference == ["9-pick_place/cube->red", "8-pick_place/cube->red"]  # slots 0 and 1
+    assert held_out and all(v.startswith("9-") for v in held_out)
