@@ -43,7 +43,9 @@ window task in training, so the plan closes the window with or without the demon
 prediction of the demonstration's later frames misses by more than for nearly every training demonstration.
 ``demonstration_surprise`` is that error (the gain's denominator); a policy with a surprise gate also guides, with
 its own weights, the demonstrations whose surprise reaches it. ``studio export-policy --surprise-percentile`` reads
-it off the training demonstrations' surprises, as ``--gate-percentile`` does the gate. Off by default (g = 1, no gate).
+it off the training demonstrations' surprises, as ``--gate-percentile`` does the gate. Its plans come from other
+weights than the gate's (the policy's own, not the branch's), which extrapolate best at another scale:
+``ModelConfig.surprise_guidance`` (``--surprise-guidance``) sets theirs. Off by default (g = 1, no gate).
 What guidance and the gate do on Meta-World, task by task, is measured in docs/experiments.md ("How far is
 Meta-World from the paper, and what moved it?"); the shipped policy's figures are in docs/results.md.
 """

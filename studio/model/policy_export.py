@@ -27,7 +27,8 @@ guidance more precise can cost the guided ones (docs/experiments.md, Meta-World)
 ``--surprise-percentile P`` (or ``--surprise-gate S`` by hand) adds the surprise gate (``studio.model.guidance``):
 the policy's own weights also guide the demonstrations below the gate whose surprise — how badly the world model
 predicts the demonstration's video even with it — reaches the P-th percentile of the training demonstrations'
-surprises, read by the policy's own weights.
+surprises, read by the policy's own weights. ``--surprise-guidance G`` plans those at their own scale: they come from
+other weights than the gate's (the shipped Meta-World policy guides them at 3, its gate's at 5).
 """
 
 from __future__ import annotations
