@@ -61,8 +61,10 @@ def test_two_presses_make_a_double_click(page):
 
 
 def test_a_click_playwright_cannot_make_in_time_is_pressed_and_says_what_playwright_waited_for(page):
-    page.evaluate("setTimeout(() => { document.getElementById('late').disabled = false; }, 2500)")
-    said = click_button(page, page.locator("#late"), wait=1)
+    # Playwright names what it waits for only after its first check; a loaded machine can spend a second before it
+    # (a fresh clone's run met that), so it gets 3 s, and the button stays disabled 2 s beyond them.
+    page.evaluate("setTimeout(() => { document.getElementById('late').disabled = false; }, 5000)")
+    said = click_button(page, page.locator("#late"), wait=3)
     assert said is not None and said.startswith("Playwright: element is not enabled;"), said
     assert page.evaluate("hits.late") == 1
     assert click_button(page, page.locator("#late"), wait=1) is None  # enabled now: Playwright's own click
