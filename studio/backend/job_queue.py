@@ -392,7 +392,7 @@ class JobQueue:
 
     def _publish(self, key: str, message: msg.Message) -> None:
         try:
-            self.session.put(key, msg.encode(message))
+            self.session.put(key, msg.encode(message), congestion_control=bus.MUST_ARRIVE)
         except zenoh.ZError:
             bus.log.warning("could not publish on %s", key)
 

@@ -271,6 +271,7 @@ class JobContext:
                 message=message[:4000],
                 eta_s=eta_s,
             ),
+            must_arrive=False,
         )
         if total and now - self._activity_at >= 0.5:  # the worker's status says how far it is, at ≤ 2 Hz
             self._activity_at = now
@@ -308,7 +309,7 @@ class JobContext:
 
     def poses(self, frame: msg.PoseFrame) -> None:
         """Stream the poses of a running simulation (latest wins) for live display."""
-        self._runner.publish(keys.job_key(self.job, "poses"), frame)
+        self._runner.publish(keys.job_key(self.job, "poses"), frame, must_arrive=False)
 
 
 @dataclass
@@ -357,9 +358,11 @@ class JobRunner:
         ]
 
     # ------------------------------------------------------------------ bus
-    def publish(self, key: str, message: msg.Message) -> None:
+    def publish(self, key: str, message: msg.Message, *, must_arrive: bool = True) -> None:
+        """Publish a job's message; ``must_arrive=False`` for a stream whose newest sample supersedes the rest."""
+        congestion = bus.MUST_ARRIVE if must_arrive else zenoh.CongestionControl.DROP
         try:
-            self.session.put(key, msg.encode(message))
+            self.session.put(key, msg.encode(message), congestion_control=congestion)
         except zenoh.ZError:
             bus.log.warning("could not publish on %s (session closed?)", key)
 

@@ -71,7 +71,7 @@ class WorkerPresence:
             updated_at=now,
         )
         status_key = keys.worker_key(kind, worker, "status")
-        self._publisher = session.declare_publisher(status_key)
+        self._publisher = session.declare_publisher(status_key, congestion_control=bus.MUST_ARRIVE)
         self._queryable = bus.declare_queryable(session, status_key, lambda _m, _q: self.status)
         self._publisher.put(msg.encode(self._status))
         self._token: zenoh.LivelinessToken | None = None

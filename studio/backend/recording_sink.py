@@ -131,7 +131,9 @@ class RecordingSink:
         self._saving_lock = threading.Lock()
         self._save_queue: collections.deque[tuple[Recording, StoppedRecording]] = collections.deque()
         self._save_cond = threading.Condition()
-        self._draft_pub = zsession.declare_publisher(keys.session_key(worker, session_id, "draft"))
+        self._draft_pub = zsession.declare_publisher(
+            keys.session_key(worker, session_id, "draft"), congestion_control=bus.MUST_ARRIVE
+        )
         self.threads = [
             threading.Thread(target=self._save_loop, name=f"save-{session_id}", daemon=True),
             threading.Thread(target=self._draft_loop, name=f"draft-{session_id}", daemon=True),

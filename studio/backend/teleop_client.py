@@ -6,6 +6,10 @@
     pose = client.wait_ack(seq)                     # the first PoseFrame that applied it
     client.start_recording(); ...; saved = client.stop_recording()
 
+Commands stream as *latest wins*: the bus drops a command when the link's queue is full (a loaded machine
+fills it with a burst), so the client sends its newest command again, same ``seq``, until a pose frame says the
+worker applied it (:data:`RESEND_AFTER_S`); a motion's last target and a gripper change are never lost.
+
 The client holds a liveliness token for its session, so the worker closes the session if the client
 process dies. The worker's answer to ``open`` carries the session's owner token, which the client then attaches
 to every request and command (:mod:`studio.backend.sim_worker`); nobody else can drive or stop the session.
@@ -25,6 +29,9 @@ import zenoh
 from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.presence import Directory
+
+#: The newest command, not yet applied by the worker this long after it was sent, is sent again (same seq).
+RESEND_AFTER_S = 0.2
 
 
 def choose_sim_worker(directory: Directory) -> str:
@@ -60,6 +67,9 @@ class TeleopClient:
         self.info: msg.SessionInfo | None = None
         self._seq = 0
         self._seq_lock = threading.Lock()
+        #: The newest command while the worker has not applied it: (seq, encoded, monotonic time last sent).
+        self._unapplied: tuple[int, bytes, float] | None = None
+        self.resent = 0  # commands sent again because the worker had not applied them
         self._owner: bytes | None = None  # the session's owner token, from the worker's answer to open
         self.poses = bus.Latest()
         self.frames = bus.Latest()
@@ -92,6 +102,7 @@ class TeleopClient:
     # ------------------------------------------------------------------ streams
     def _pose(self, frame: msg.PoseFrame, _sample: Any) -> None:
         self.poses.put(frame)
+        self._resend_unapplied(frame.ack_seq)
         if self._on_pose is not None:
             self._on_pose(frame)
 
@@ -106,6 +117,23 @@ class TeleopClient:
                 self._events_cond.notify_all()
         if self._on_status is not None:
             self._on_status(message)
+
+    def _resend_unapplied(self, ack_seq: int) -> None:
+        """Send the newest command again if the worker has not applied it within :data:`RESEND_AFTER_S`."""
+        with self._seq_lock:
+            if self._unapplied is None:
+                return
+            seq, payload, sent = self._unapplied
+            if ack_seq >= seq:
+                self._unapplied = None
+                return
+            now = time.monotonic()
+            if now - sent < RESEND_AFTER_S:
+                return
+            self._unapplied = (seq, payload, now)
+            self.resent += 1
+        with contextlib.suppress(zenoh.ZError):
+            self._cmd_pub.put(payload, attachment=self._owner)
 
     def _draft(self, chunk: msg.DraftChunk, _sample: Any) -> None:
         if self._on_draft is not None:
@@ -149,10 +177,12 @@ class TeleopClient:
         with self._seq_lock:
             self._owner = None if info.owner is None else info.owner.encode()
             self._seq = 0  # a new session counts its commands afresh
+            self._unapplied = None
         self.info = info
         return info
 
     def reset(self, task: str | None = None, seed: int | None = None) -> msg.SessionInfo:
+        self._forget_unapplied()  # a target meant for the scene before the reset
         self.info = self._request(msg.ResetSession(task=task, seed=seed), msg.SessionInfo)
         return self.info
 
@@ -162,9 +192,16 @@ class TeleopClient:
         with self._seq_lock:
             self._seq += 1
             seq = self._seq
-        cmd = msg.EeTarget(seq=seq, pos=(x, y, z), gripper=min(1.0, max(0.0, float(gripper))))
-        self._cmd_pub.put(msg.encode(cmd), attachment=self._owner)
+            payload = msg.encode(
+                msg.EeTarget(seq=seq, pos=(x, y, z), gripper=min(1.0, max(0.0, float(gripper))))
+            )
+            self._unapplied = (seq, payload, time.monotonic())
+        self._cmd_pub.put(payload, attachment=self._owner)
         return seq
+
+    def _forget_unapplied(self) -> None:
+        with self._seq_lock:
+            self._unapplied = None
 
     def latest_pose(self) -> msg.PoseFrame | None:
         return self.poses.get()[0]
@@ -178,6 +215,8 @@ class TeleopClient:
         self, role: msg.Role | None = None, reset: bool = True, draft: str | None = None
     ) -> msg.SessionState:
         """Start recording; with ``draft`` the worker journals the ticks to this client as it goes."""
+        if reset:
+            self._forget_unapplied()
         return self._request(msg.StartRecording(role=role, reset=reset, draft=draft), msg.SessionState)
 
     def discard_recording(self) -> msg.SessionState:

@@ -196,7 +196,11 @@ class TeleopSession:
         )
         if fork is not None:
             self.sink.continue_fork(self.env, fork)
-        self._status_pub = zsession.declare_publisher(keys.session_key(worker, session_id, "status"))
+        status_key = keys.session_key(worker, session_id, "status")
+        self._state_pub = zsession.declare_publisher(
+            status_key
+        )  # periodic: a newer state supersedes a lost one
+        self._event_pub = zsession.declare_publisher(status_key, congestion_control=bus.MUST_ARRIVE)
         self._cmd_sub = bus.declare_subscriber(
             zsession, keys.session_key(worker, session_id, "cmd"), self._on_cmd, msg.EeTarget
         )
@@ -285,8 +289,10 @@ class TeleopSession:
         )
 
     def _publish_status(self, message: msg.Message) -> None:
+        """A session state (latest wins), or an event the client waits for (an episode stored or not)."""
+        publisher = self._state_pub if isinstance(message, msg.SessionState) else self._event_pub
         try:
-            self._status_pub.put(msg.encode(message))
+            publisher.put(msg.encode(message))
         except zenoh.ZError:
             pass
 
@@ -589,7 +595,7 @@ class TeleopSession:
         for t in self._threads + self.sink.threads:
             t.join(max(0.1, deadline - time.monotonic()))
         self._publish_status(self.state("closed"))
-        for entity in (self._cmd_sub, self._pose_pub, self._frame_pub, self._status_pub):
+        for entity in (self._cmd_sub, self._pose_pub, self._frame_pub, self._state_pub, self._event_pub):
             try:
                 entity.undeclare()
             except zenoh.ZError:

@@ -138,3 +138,47 @@ def test_latest_keeps_only_the_newest_value():
     assert box.get() == (4, 5)
     threading.Timer(0.05, box.put, args=(10,)).start()
     assert box.wait_until(lambda v: v >= 10, 2.0) == 10
+
+
+def test_a_stalled_subscriber_loses_samples_that_may_drop_but_none_that_must_arrive(port):
+    """A consumer that stops reading fills the link's queue: Zenoh's default congestion control drops what a burst
+    sends meanwhile; :data:`bus.MUST_ARRIVE` holds the publisher back until the consumer reads again."""
+    hub = bus.open_session(bus.BusConfig.hub([bus.loopback_endpoint(port)]))
+    sender = bus.open_session(bus.BusConfig.worker([bus.loopback_endpoint(port)]))
+    receiver = bus.open_session(bus.BusConfig.worker([bus.loopback_endpoint(port)]))
+    burst, size = 200, 65536  # 13 MB: more than the loopback socket buffers hold
+    try:
+        got = {"drop": 0, "must": 0}
+        sent = threading.Event()
+
+        def receive_drop(_sample) -> None:
+            if got["drop"] == 0:
+                sent.wait(30)  # stalled until the whole burst was handed to the bus
+            got["drop"] += 1
+
+        def receive_must(_sample) -> None:
+            if got["must"] == 0:
+                time.sleep(0.5)  # (waiting for the burst here would wait forever: it blocks its sender)
+            got["must"] += 1
+
+        subs = [
+            receiver.declare_subscriber("t/drop", receive_drop),
+            receiver.declare_subscriber("t/must", receive_must),
+        ]
+        time.sleep(0.5)  # the subscriptions reach the sender
+        for name, kwargs in (("drop", {}), ("must", {"congestion_control": bus.MUST_ARRIVE})):
+            publisher = sender.declare_publisher(f"t/{name}", **kwargs)
+            for _ in range(burst):
+                publisher.put(bytes(size))
+            sent.set()
+            deadline = time.monotonic() + (10 if name == "must" else 2)  # a dropped sample never comes
+            while got[name] < burst and time.monotonic() < deadline:
+                time.sleep(0.05)
+            publisher.undeclare()
+        assert got["drop"] < burst, "the stall did not fill the queue: the test shows nothing"
+        assert got["must"] == burst
+        for sub in subs:
+            sub.undeclare()
+    finally:
+        for s in (receiver, sender, hub):
+            s.close()

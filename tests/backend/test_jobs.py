@@ -7,13 +7,17 @@ import signal
 import time
 
 import pytest
+import zenoh
 
 from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.hub import Hub
 from studio.backend.job_client import JobClient
+from studio.backend.job_runner import JobRunner
+from studio.backend.presence import WorkerPresence
 
 from .conftest import wait_worker
+from .job_handlers import count_steps
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -248,3 +252,42 @@ def test_malformed_job_requests_get_error_replies_and_nothing_crashes(hub, worke
     with JobClient(hub.session).watch(status.job) as w:
         assert w.wait(timeout=15).state == "succeeded"
     assert {s.job for s in JobClient(hub.session).list()} == {status.job}
+
+
+class _RecordsPuts:
+    """A worker's Zenoh session that notes how each publication is sent (then sends it)."""
+
+    def __init__(self, session):
+        self.session, self.sent = session, []
+
+    def put(self, key, payload, **kwargs):
+        self.sent.append((str(key).rsplit("/", 1)[-1], kwargs.get("congestion_control")))
+        self.session.put(key, payload, **kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self.session, name)
+
+
+def test_a_jobs_report_artifacts_and_result_must_arrive_its_progress_may_drop(hub, tmp_path):
+    """A lost final report leaves a finished job running in the queue and its watchers waiting: the runner sends
+    reports, artifacts and results so that a full queue blocks them; progress, superseded by the next, drops."""
+    worker = bus.open_session(bus.BusConfig.worker([hub.endpoint]))
+    session = _RecordsPuts(worker)
+    presence = WorkerPresence(worker, "train", "t-inproc", job_kinds=("count",), announce=False)
+    runner = JobRunner(session, presence, {"count": count_steps})
+    presence.announce()
+    try:
+        wait_worker(hub.directory, "t-inproc")
+        client = JobClient(hub.session)
+        status = client.submit("count", count_spec(tmp_path, "run", steps=4, every=2), worker_kind="train")
+        with client.watch(status.job) as watch:
+            assert watch.wait(timeout=20).state == "succeeded"
+        how: dict[str, set[str]] = {}
+        for leaf, congestion in session.sent:
+            how.setdefault(leaf, set()).add(str(congestion))
+        assert how["report"] == how["artifacts"] == how["result"] == {str(bus.MUST_ARRIVE)}
+        assert how["progress"] == {str(zenoh.CongestionControl.DROP)}
+    finally:
+        runner.shutdown()
+        presence.close()
+        worker.close()

@@ -25,6 +25,8 @@ def test_directory_sees_status_changes_and_departure(port):
         directory.add_listener(lambda event, entry: events.append((event, entry.worker)))
         wait_worker(directory, "t-1", timeout=5)
         entry = directory.get("train", "t-1")
+        # A lost status would show a worker busy that is idle: it blocks on a full queue instead of dropping.
+        assert presence._publisher.congestion_control == bus.MUST_ARRIVE
         assert entry.status.job_kinds == ("train",) and entry.status.unavailable == {"x": "why"}
         presence.update(state="busy", activity="training job j", job="j")
         assert directory.wait_for(lambda ws: ws[0].status.state == "busy" and ws[0].status.job == "j", 5)

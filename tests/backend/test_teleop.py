@@ -12,8 +12,10 @@ import zenoh
 
 from studio.backend import bus, keys
 from studio.backend import messages as msg
+from studio.backend.episode_transfer import EpisodeDestination
 from studio.backend.hub import Hub
 from studio.backend.teleop_client import TeleopClient, choose_sim_worker
+from studio.backend.teleop_session import TeleopSession
 
 from .conftest import Workers, wait_worker
 
@@ -107,6 +109,84 @@ def test_recorded_episode_lands_in_the_hub_store(site, worker, via):
     assert episode.frames.shape[0] == saved.frames
     ee = episode.arrays["ee_pos_world"]
     assert ee[-1][1] - ee[0][1] > 0.02  # the recorded arm followed the commands
+
+
+class _FullQueue:
+    """A command publisher whose link drops every command the first time it is sent (as a full queue does)."""
+
+    def __init__(self, publisher):
+        self.publisher, self.seen, self.dropped = publisher, set(), 0
+
+    def put(self, payload: bytes, **kwargs) -> None:
+        if payload not in self.seen:
+            self.seen.add(payload)
+            self.dropped += 1
+            return
+        self.publisher.put(payload, **kwargs)
+
+    def __getattr__(self, name: str):
+        return getattr(self.publisher, name)
+
+
+def test_a_command_the_bus_dropped_is_sent_again_until_the_worker_applied_it(site):
+    hub, _ = site
+    with TeleopClient(hub.session, "sim-local") as client:
+        client.open("pick_place", "sawyer", TASK, seed=1)
+        start = np.asarray(client.poses.wait_until(lambda f: True, 5.0).ee_pos)
+        client._cmd_pub = _FullQueue(client._cmd_pub)
+        # A motion's last target with a gripper change, lost on its first send: the arm still gets there.
+        target = start + np.array([0.0, 0.0, 0.06])
+        seq = client.set_target(target, 1.0)
+        frame = client.wait_ack(seq, timeout=3.0)
+        assert frame is not None, "a dropped command was never sent again"
+        assert client._cmd_pub.dropped == 1 and client.resent >= 1
+        frame = client.poses.wait_until(lambda f: np.linalg.norm(np.asarray(f.ee_pos) - target) < 0.01, 5.0)
+        assert frame is not None and frame.gripper == 1.0
+        # Applied once, it is not sent again.
+        resent = client.resent
+        time.sleep(0.6)
+        assert client.resent == resent
+
+
+def test_a_reset_forgets_a_command_the_worker_never_applied(site):
+    hub, _ = site
+    with TeleopClient(hub.session, "sim-local") as client:
+        client.open("pick_place", "sawyer", TASK, seed=1)
+        start = np.asarray(client.poses.wait_until(lambda f: True, 5.0).ee_pos)
+        client._cmd_pub = _FullQueue(client._cmd_pub)
+        client.set_target(start + np.array([0.0, 0.0, 0.06]), 0.0)
+        client.reset()  # before the first pose frame could send it again
+        s0 = client.latest_pose().step
+        time.sleep(0.6)
+        frame = client.poses.wait_until(lambda f: f.step >= s0 + 20, 5.0)
+        assert frame is not None and frame.ack_seq == -1 and client.resent == 0
+        assert np.linalg.norm(np.asarray(frame.ee_pos) - start) < 0.01
+
+
+def test_a_sessions_events_and_journal_must_arrive_its_streams_may_drop(site, tmp_path):
+    """An episode's stored / not stored event and the draft chunks a fork journals block on a full queue (a lost
+    one strands the page at "Saving…" or breaks the draft); poses, frames and periodic states drop."""
+    hub, _ = site
+    request = msg.OpenSession(scene="pick_place", robot="sawyer", task=TASK, seed=0)
+    session = TeleopSession(
+        hub.session,
+        "sim-inproc",
+        "s-inproc",
+        request,
+        EpisodeDestination(data_dir=tmp_path),
+        tmp_path / "spool",
+    )
+    try:
+        must, drop = zenoh.CongestionControl.BLOCK, zenoh.CongestionControl.DROP
+        assert bus.MUST_ARRIVE == must
+        assert (
+            session._event_pub.congestion_control == must
+            and session.sink._draft_pub.congestion_control == must
+        )
+        assert session._state_pub.congestion_control == drop
+        assert session._pose_pub.congestion_control == drop and session._frame_pub.congestion_control == drop
+    finally:
+        session.close()
 
 
 def test_two_clients_get_independent_sessions(site):
