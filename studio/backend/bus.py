@@ -59,7 +59,8 @@ LEASE_MS = 3000
 
 #: How a publication that must arrive is sent: an event (an episode stored), a job's report, artifact or result, a
 #: journaled chunk, a worker's status. Zenoh's default drops a sample when the link's queue is full, which a loaded
-#: machine reaches with a burst; these block until there is room instead. Streams where the newest sample
+#: machine reaches with a burst; these block until there is room instead (Zenoh closes a link that stays full for
+#: 5 s, ``transport/link/tx/queue/congestion_control/block/wait_before_close``). Streams where the newest sample
 #: supersedes the rest (poses, frames, progress, a session's periodic state, teleop commands, which the client
 #: re-sends until applied) keep dropping, so a slow consumer never holds their producer back.
 MUST_ARRIVE = zenoh.CongestionControl.BLOCK
