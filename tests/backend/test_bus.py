@@ -32,6 +32,11 @@ def test_defaults_are_loopback_only_without_multicast():
         z = cfg.zenoh_config()
         assert json.loads(z.get_json("scouting/multicast/enabled")) is False
         assert json.loads(z.get_json("transport/link/tx/lease")) == bus.LEASE_MS
+        # What must arrive blocks a publisher for at most this long (µs) before Zenoh closes the full link.
+        assert (
+            json.loads(z.get_json("transport/link/tx/queue/congestion_control/block/wait_before_close"))
+            == 5_000_000
+        )
     # A peer without listen endpoints listens on loopback only (Zenoh's own default is every interface).
     peer = bus.BusConfig(mode="peer").zenoh_config()
     assert json.loads(peer.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
