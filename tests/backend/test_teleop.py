@@ -128,12 +128,18 @@ class _FullQueue:
         return getattr(self.publisher, name)
 
 
+def _open_behind_a_full_queue(client: TeleopClient) -> np.ndarray:
+    """Open a Sawyer session, then put the client's commands behind :class:`_FullQueue`; returns the start pose."""
+    client.open("pick_place", "sawyer", TASK, seed=1)
+    start = np.asarray(client.poses.wait_until(lambda f: True, 5.0).ee_pos)
+    client._cmd_pub = _FullQueue(client._cmd_pub)
+    return start
+
+
 def test_a_command_the_bus_dropped_is_sent_again_until_the_worker_applied_it(site):
     hub, _ = site
     with TeleopClient(hub.session, "sim-local") as client:
-        client.open("pick_place", "sawyer", TASK, seed=1)
-        start = np.asarray(client.poses.wait_until(lambda f: True, 5.0).ee_pos)
-        client._cmd_pub = _FullQueue(client._cmd_pub)
+        start = _open_behind_a_full_queue(client)
         # A motion's last target with a gripper change, lost on its first send: the arm still gets there.
         target = start + np.array([0.0, 0.0, 0.06])
         seq = client.set_target(target, 1.0)
@@ -151,9 +157,7 @@ def test_a_command_the_bus_dropped_is_sent_again_until_the_worker_applied_it(sit
 def test_a_reset_forgets_a_command_the_worker_never_applied(site):
     hub, _ = site
     with TeleopClient(hub.session, "sim-local") as client:
-        client.open("pick_place", "sawyer", TASK, seed=1)
-        start = np.asarray(client.poses.wait_until(lambda f: True, 5.0).ee_pos)
-        client._cmd_pub = _FullQueue(client._cmd_pub)
+        start = _open_behind_a_full_queue(client)
         client.set_target(start + np.array([0.0, 0.0, 0.06]), 0.0)
         client.reset()  # before the first pose frame could send it again
         s0 = client.latest_pose().step
