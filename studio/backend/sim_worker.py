@@ -22,6 +22,7 @@ import contextlib
 import hmac
 import secrets
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -144,10 +145,11 @@ class SimWorker:
             return msg.ErrorReply(code=e.code, message=str(e))
 
     def _open(self, session_id: str, request: msg.OpenSession, query: zenoh.Query) -> None:
+        started = time.monotonic()
         try:
             with self._lock:
                 owner = self._owners.get(session_id) or secrets.token_urlsafe(24)
-            self._close_session(session_id)  # re-opening (by its owner) replaces the old session
+            replaced = self._close_session(session_id)  # re-opening (by its owner) replaces the old session
             try:
                 session = TeleopSession(
                     self.zsession,
@@ -177,6 +179,17 @@ class SimWorker:
                 bus.reply(query, msg.ErrorReply(code="unavailable", message="worker is shutting down"))
                 return
             bus.reply(query, session.info())
+            bus.log.info(
+                "%s session %s: %s / %s / %s seed %d in %.1f s (%d sessions)",
+                "re-opened" if replaced else "opened",
+                session_id,
+                request.scene,
+                request.robot,
+                request.task,
+                request.seed,
+                time.monotonic() - started,
+                len(self.sessions),
+            )
             self._announce()
         finally:
             with self._lock:
@@ -211,6 +224,7 @@ class SimWorker:
             self._owners.pop(session_id, None)
         if session is None:
             return False
+        bus.log.info("closing session %s", session_id)
         if wait:
             session.close()
         else:

@@ -28,9 +28,15 @@ import numpy as np
 
 from studio.bench.ui import CHROMIUM, CHROMIUM_ARGS, WEBGL_ARGS
 
-#: Slows the page's animation frames to ~5 fps so software WebGL does not starve the simulation on 2 cores.
+#: Slows the page's animation frames to ~5 fps so software WebGL does not starve the simulation on 2 cores. While
+#: ``window.__studioBackground`` is true the page draws nothing, as a browser pauses a background tab's frames
+#: (headless Chromium draws every page it has open; see :data:`PAUSE_DRAWING`).
 THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window);
-  window.requestAnimationFrame = (cb) => setTimeout(() => raf(cb), 200); })();"""
+  const later = (cb) => setTimeout(() => (window.__studioBackground ? later(cb) : raf(cb)), 200);
+  window.requestAnimationFrame = later; })();"""
+
+#: Scripts that pause and resume a THROTTLE_RAF page's drawing.
+PAUSE_DRAWING, RESUME_DRAWING = "window.__studioBackground = true", "window.__studioBackground = false"
 
 
 def wait_until(

@@ -3,6 +3,7 @@ directory and shipped over the bus), independent sessions, bad requests, clients
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 
@@ -14,6 +15,8 @@ from studio.backend import bus, keys
 from studio.backend import messages as msg
 from studio.backend.episode_transfer import EpisodeDestination
 from studio.backend.hub import Hub
+from studio.backend.presence import WorkerPresence
+from studio.backend.sim_worker import SimWorker
 from studio.backend.teleop_client import TeleopClient, choose_sim_worker
 from studio.backend.teleop_session import TeleopSession
 
@@ -210,6 +213,39 @@ def test_two_clients_get_independent_sessions(site):
         a.close()
         assert b.wait_ack(b.set_target(b0 + np.array([0.03, 0.0, 0.0]), 0.0)) is not None  # b is unaffected
     assert hub.directory.wait_for(lambda ws: hub.directory.get("sim", "sim-local").status.sessions == 0, 10)
+
+
+def test_the_worker_logs_each_session_it_opens_replaces_and_closes(site, tmp_path, caplog):
+    """What an operator reads in a sim worker's log: each session opened (scene, robot, task, seed, how long it
+    took, how many the worker hosts), replaced by a re-open, and closed."""
+    hub, _ = site
+    presence = WorkerPresence(hub.session, "sim", "sim-logs", announce=False)
+    host = SimWorker(hub.session, presence, EpisodeDestination(data_dir=tmp_path), tmp_path / "spool")
+    caplog.set_level("INFO", logger=bus.log.name)
+    try:
+        with TeleopClient(hub.session, "sim-logs") as client:
+            client.open("pick_place", "sawyer", TASK, seed=3)
+            client.open("push", "panda", "push/red-forward", seed=4)
+            sid = client.session_id
+        deadline = time.monotonic() + 10
+        while host.sessions and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not host.sessions
+    finally:
+        host.close()
+        presence.close()
+    lines = [r.getMessage() for r in caplog.records if sid in r.getMessage()]
+    assert len(lines) == 4, lines
+    assert re.fullmatch(
+        rf"opened session {sid}: pick_place / sawyer / {re.escape(TASK)} seed 3 in \d+\.\d s \(1 sessions\)",
+        lines[0],
+    )
+    assert lines[1] == f"closing session {sid}"
+    assert re.fullmatch(
+        rf"re-opened session {sid}: push / panda / push/red-forward seed 4 in \d+\.\d s \(1 sessions\)",
+        lines[2],
+    )
+    assert lines[3] == f"closing session {sid}"
 
 
 def test_bad_requests_get_clear_errors_and_the_session_survives(site):

@@ -14,12 +14,15 @@ from pathlib import Path
 import pytest
 
 from studio.backend import bus
-from studio.bench.click_demo import click_button, press, screen_point  # noqa: F401 (the tests' names for them)
+from studio.bench.click_demo import (  # noqa: F401 (the tests' names for them)
+    PAUSE_DRAWING,
+    RESUME_DRAWING,
+    THROTTLE_RAF,
+    click_button,
+    press,
+    screen_point,
+)
 from studio.bench.ui import CHROMIUM, CHROMIUM_ARGS, WEBGL_ARGS
-
-THROTTLE_RAF = """(() => { const raf = window.requestAnimationFrame.bind(window);
-  window.requestAnimationFrame = (cb) => setTimeout(() => raf(cb), 200); })();"""
-
 
 #: The apps ``running_studio`` has started in this process and not stopped: what :func:`wait` waits on.
 _RUNNING: list = []
@@ -57,6 +60,23 @@ def open_page(studio, ready: str = "ready. Drag the gizmo", viewport=(1100, 720)
         pg.get_by_text(ready).filter(visible=True).first.wait_for(timeout=90_000)
         yield pg
         browser.close()
+
+
+@contextlib.contextmanager
+def in_background(pages) -> Iterator:
+    """Pause the drawing of ``pages`` (THROTTLE_RAF pages) inside the block, as a browser pauses its background
+    tabs: headless Chromium draws every open page in software, and a page loading beside one that draws waits
+    for the CPU (a second tab took 20–60 s to connect beside six busy processes, and over 120 s in an
+    overloaded test run)."""
+    paused = [pg for pg in pages if not pg.is_closed()]
+    for pg in paused:
+        pg.evaluate(PAUSE_DRAWING)
+    try:
+        yield
+    finally:
+        for pg in paused:
+            if not pg.is_closed():
+                pg.evaluate(RESUME_DRAWING)
 
 
 def launch(p):

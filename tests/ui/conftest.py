@@ -1,8 +1,9 @@
 """Fixtures the browser-test modules share, each started once per module so that modules stay independent of
 each other's state: ``shots`` (where screenshots go), ``data_dir`` (an empty data directory; a module overrides
 it with the store its tests need), ``studio`` (the app with its embedded workers, on that directory) and
-``page`` (headless Chromium on the studio, once it is ready). A failed browser test leaves a screenshot of the
-page as it was, named after the test, and prints where."""
+``page`` (headless Chromium on the studio, once it is ready). A failed browser test leaves a screenshot of each
+page it had open (``page``, and those in a test's ``opened`` list) as it was, named after the test, and prints
+where."""
 
 from __future__ import annotations
 
@@ -18,13 +19,20 @@ from browser_support import open_page, running_studio
 @pytest.hookimpl(wrapper=True, tryfirst=True)
 def pytest_runtest_makereport(item, call):
     report = yield
-    if report.when == "call" and report.failed and "page" in item.funcargs:
-        path = Path(item.funcargs.get("shots") or item.config.rootpath) / f"FAILED-{item.name}.png"
-        try:
-            item.funcargs["page"].screenshot(path=str(path), timeout=10_000)
-            report.sections.append(("screenshot of the failure", str(path)))
-        except Exception as e:  # the page itself may be what failed
-            report.sections.append(("screenshot of the failure", f"not taken: {e}"))
+    if report.when == "call" and report.failed:
+        pages = ([item.funcargs["page"]] if "page" in item.funcargs else []) + list(
+            item.funcargs.get("opened") or []
+        )
+        folder = Path(item.funcargs.get("shots") or item.config.rootpath)
+        for i, pg in enumerate(pages):
+            path = folder / (f"FAILED-{item.name}" + (f"-{i}" if i else "") + ".png")
+            try:
+                if pg.is_closed():
+                    continue
+                pg.screenshot(path=str(path), timeout=10_000)
+                report.sections.append(("screenshot of the failure", str(path)))
+            except Exception as e:  # the page itself may be what failed
+                report.sections.append(("screenshot of the failure", f"not taken: {e}"))
     return report
 
 

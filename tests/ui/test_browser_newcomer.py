@@ -179,13 +179,21 @@ def opened(browser):
 def new_page(browser, studio, viewport=(1100, 720), opened: list | None = None):
     """One more browser tab on the studio, once its teleop session is ready (the tab the app opened for it)."""
     before = set(studio.tabs)
+    others = list(opened or [])
     pg = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
     if opened is not None:
         opened.append(pg)
-    pg.bring_to_front()  # the tab a person looks at (a background tab's timers are throttled)
+    pg.bring_to_front()  # the tab a person looks at (headless Chromium still draws the others: in_background)
     pg.add_init_script(THROTTLE_RAF)
-    pg.goto(studio.url)
-    pg.get_by_text("ready. Drag the gizmo").filter(visible=True).first.wait_for(timeout=120_000)
+    with ui.in_background(others):  # the tabs opened before are in the background while this one loads
+        pg.goto(studio.url)
+        try:
+            pg.get_by_text("ready. Drag the gizmo").filter(visible=True).first.wait_for(timeout=120_000)
+        except Exception as e:
+            shown = {c: ui.teleop_state(t) for c, t in list(studio.tabs.items()) if c not in before}
+            raise AssertionError(
+                f"the new tab was not ready within 120 s ({shown or 'no tab opened'}): {e}"
+            ) from e
     (client_id,) = set(studio.tabs) - before
     return pg, studio.tabs[client_id]
 
