@@ -539,6 +539,9 @@ class ImitatePanel:
             match = [o for o in self.demo.options if o.startswith(eid)]
             if match:
                 self.demo.value = match[0]
+            # Its frames now, not at the next refresh: that one would clear a plan of the previous demonstration
+            # with "Demonstration changed", over this message, before the page had shown it.
+            self.show_expert_frames(self.shown_demo())
             self.status.content = f"Scripted demonstration `{eid}` stored and selected."
             self.app.dataset_changed()
         else:
