@@ -70,6 +70,11 @@ class BusError(RuntimeError):
     """The bus could not be opened, or a request got no valid answer."""
 
 
+class RequestTimeout(BusError):
+    """A request was not answered within its timeout (Zenoh's own "Timeout" reply): the other side may be slow
+    rather than absent, and may still act on the request."""
+
+
 class RemoteError(BusError):
     """The other side answered a request with an :class:`~studio.backend.messages.ErrorReply`."""
 
@@ -536,8 +541,8 @@ def request(
     """Send ``message`` as a query to ``key`` and return the first valid reply. ``attachment`` travels beside the
     message (a teleop session's owner token, see :mod:`studio.backend.sim_worker`).
 
-    Raises :class:`RemoteError` if the answer is an ErrorReply and :class:`BusError` if nothing valid
-    arrives within ``timeout`` seconds.
+    Raises :class:`RemoteError` if the answer is an ErrorReply, :class:`RequestTimeout` if the query timed out
+    without a valid answer, and :class:`BusError` otherwise (nobody answered, or only with invalid replies).
     """
     problems: list[str] = []
     for reply in session.get(key, payload=msg.encode(message), timeout=timeout, attachment=attachment):
@@ -556,7 +561,8 @@ def request(
             continue
         return answer
     detail = "; ".join(problems) if problems else "nobody answered"
-    raise BusError(f"{type(message).__name__} to {key} failed within {timeout:.1f} s: {detail}")
+    error = RequestTimeout if "Timeout" in problems else BusError
+    raise error(f"{type(message).__name__} to {key} failed within {timeout:.1f} s: {detail}")
 
 
 def request_all(

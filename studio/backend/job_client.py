@@ -131,12 +131,19 @@ class JobWatch:
         self.close()
 
 
+#: How long :meth:`JobClient.submit` keeps asking a hub whose queue does not answer in time (a loaded machine). The
+#: queue takes a repeated submission of a job id it holds, with the same spec, as that job, so asking again never
+#: queues a job twice; giving up early could leave a queued job that nobody follows.
+SUBMIT_PATIENCE_S = 30.0
+
+
 class JobClient:
     """Submit, list, watch and cancel jobs through the hub's queue."""
 
-    def __init__(self, session: zenoh.Session, timeout: float = 5.0):
+    def __init__(self, session: zenoh.Session, timeout: float = 5.0, patience: float = SUBMIT_PATIENCE_S):
         self.session = session
         self.timeout = timeout
+        self.patience = patience
 
     def submit(
         self,
@@ -148,7 +155,9 @@ class JobClient:
         max_attempts: int = 3,
         job: str | None = None,
     ) -> msg.JobStatus:
-        """Queue a job; the defaults for a known kind come from :data:`JOB_KINDS`."""
+        """Queue a job; the defaults for a known kind come from :data:`JOB_KINDS`. A submission the queue does not
+        answer within ``timeout`` is sent again under the same job id for up to ``patience`` seconds
+        (:data:`SUBMIT_PATIENCE_S`); then :class:`~studio.backend.bus.RequestTimeout` is raised."""
         known = JOB_KINDS.get(kind)
         if worker_kind is None:
             if known is None:
@@ -165,9 +174,19 @@ class JobClient:
             requeue_on_worker_loss=requeue_on_worker_loss,
             max_attempts=max_attempts,
         )
-        return bus.request(
-            self.session, keys.job_key(job, "submit"), submit, msg.JobStatus, timeout=self.timeout
-        )
+        deadline, tries = time.monotonic() + max(self.patience, self.timeout), 0
+        while True:
+            tries += 1
+            try:
+                return bus.request(
+                    self.session, keys.job_key(job, "submit"), submit, msg.JobStatus, timeout=self.timeout
+                )
+            except bus.RequestTimeout as e:
+                if time.monotonic() + self.timeout > deadline:
+                    raise bus.RequestTimeout(f"{e} (asked {tries} times)") from e
+                bus.log.info(
+                    "job %s: the queue did not answer in %.1f s, asking again (same job)", job, self.timeout
+                )
 
     def cancel(self, job: str, reason: str = "") -> msg.JobStatus:
         return bus.request(

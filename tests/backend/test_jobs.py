@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import signal
+import threading
 import time
 
 import pytest
@@ -291,3 +292,55 @@ def test_a_jobs_report_artifacts_and_result_must_arrive_its_progress_may_drop(hu
         runner.shutdown()
         presence.close()
         worker.close()
+
+
+def test_a_submission_the_queue_answers_late_is_asked_again_as_the_same_job(port):
+    """A hub too busy to answer a JobSubmit in time may still queue it: the client asks again under the same job id
+    (a repeated submission is that job, next test) rather than fail the person's click, and gives up only after
+    its patience, saying how often it asked."""
+    hub_side = bus.open_session(bus.BusConfig.hub([bus.loopback_endpoint(port)]))
+    client_side = bus.open_session(bus.BusConfig.worker([bus.loopback_endpoint(port)]))
+    asked: list[str] = []
+    held: list[zenoh.Query] = []  # kept, so that they time out rather than end unanswered
+    late = threading.Event()
+
+    def on_submit(submit: msg.JobSubmit, query: zenoh.Query):
+        asked.append(submit.job)
+        if len(asked) == 1 or late.is_set():
+            held.append(query)
+            return bus.DEFERRED  # not answered (the query times out)
+        now = time.time()
+        return msg.JobStatus(
+            job=submit.job, kind=submit.kind, worker_kind=submit.worker_kind, state="queued", attempt=1,
+            worker=None, reason="waiting for a worker", submitted_at=now, updated_at=now, spec=submit.spec,
+        )  # fmt: skip
+
+    queryable = bus.declare_queryable(hub_side, keys.all_jobs("submit"), on_submit, msg.JobSubmit)
+    try:
+        time.sleep(0.5)  # the queryable's declaration reaches the client's session
+        client = JobClient(client_side, timeout=0.4, patience=3.0)
+        status = client.submit("count", {"steps": 1}, worker_kind="train", job="count-late-1")
+        assert status.job == "count-late-1" and status.state == "queued"
+        assert asked == ["count-late-1", "count-late-1"]
+        late.set()
+        started = time.monotonic()
+        with pytest.raises(bus.RequestTimeout, match=r"asked \d+ times"):
+            client.submit("count", {"steps": 1}, worker_kind="train", job="count-late-2")
+        assert 2.0 <= time.monotonic() - started < 4.0 and asked.count("count-late-2") >= 5
+    finally:
+        queryable.undeclare()
+        client_side.close()
+        hub_side.close()
+
+
+def test_a_repeated_submission_is_the_job_already_queued(hub, tmp_path):
+    """What makes asking again safe: the queue answers a JobSubmit of a job id it holds, with the same spec, with
+    that job (one job, its first submission time), and refuses the id with another spec."""
+    client = JobClient(hub.session)
+    spec = count_spec(tmp_path, "a", steps=1)
+    first = client.submit("count", spec, worker_kind="train", job="count-twice-1")
+    again = client.submit("count", spec, worker_kind="train", job="count-twice-1")
+    assert (again.job, again.submitted_at) == (first.job, first.submitted_at)
+    assert [s.job for s in client.list()].count("count-twice-1") == 1
+    with pytest.raises(bus.RemoteError, match="conflict"):
+        client.submit("count", {**spec, "steps": 2}, worker_kind="train", job="count-twice-1")
