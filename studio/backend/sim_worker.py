@@ -131,7 +131,7 @@ class SimWorker:
             threading.Thread(target=self._open, args=(session_id, request, query), daemon=True).start()
             return bus.DEFERRED
         if isinstance(request, msg.CloseSession):
-            found = self._close_session(session_id, wait=False)
+            found = self._close_session(session_id, "its client closed it", wait=False)
             return msg.Ack(message="closed" if found else "no such session")
         with self._lock:
             session = self._sessions.get(session_id)
@@ -149,7 +149,9 @@ class SimWorker:
         try:
             with self._lock:
                 owner = self._owners.get(session_id) or secrets.token_urlsafe(24)
-            replaced = self._close_session(session_id)  # re-opening (by its owner) replaces the old session
+            replaced = self._close_session(
+                session_id, "re-opened"
+            )  # re-opening (by its owner) replaces the old session
             try:
                 session = TeleopSession(
                     self.zsession,
@@ -215,16 +217,16 @@ class SimWorker:
         except zenoh.ZError:
             alive = False
         if not alive:
-            self._close_session(session_id, wait=False)
+            self._close_session(session_id, "its client left the bus", wait=False)
 
-    def _close_session(self, session_id: str, wait: bool = True) -> bool:
+    def _close_session(self, session_id: str, why: str, wait: bool = True) -> bool:
         """Remove a session; its pending saves finish (in the background unless ``wait``)."""
         with self._lock:
             session = self._sessions.pop(session_id, None)
             self._owners.pop(session_id, None)
         if session is None:
             return False
-        bus.log.info("closing session %s", session_id)
+        bus.log.info("closing session %s: %s", session_id, why)
         if wait:
             session.close()
         else:

@@ -15,6 +15,7 @@ continues it from the chosen tick and is recording.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
@@ -39,6 +40,8 @@ from studio.ui.reach import (
     path_targets,
 )
 from studio.ui.teleop_cues import DepthCues, describe
+
+log = logging.getLogger("studio.ui")
 
 HINTS = """**Click** an object or the table in the 3D view to move the gripper over it (at its height), then
 **Down** / **Up**, *Close* / *Open*; nudge by a step or use the keys (arrows, PgUp/PgDn, D/U, C/O) for the last
@@ -827,6 +830,11 @@ class TeleopPanel:
         if client is not None and not self.app.hub.directory.is_alive(client.worker) and not self._lost:
             # The worker hosting this session is gone (killed, machine lost): wait for another one.
             self._lost = True
+            log.warning(
+                "tab %s: sim worker %s left the bus; reopening the teleop session on the next one",
+                self.tab.client.client_id,
+                client.worker,
+            )
             self.tab.notify(
                 "Sim worker lost",
                 f"{client.worker} left the bus; reopening on the next sim worker.",
