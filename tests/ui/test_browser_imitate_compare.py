@@ -286,9 +286,17 @@ def test_imitate_policy_line_is_short_and_images_enlarge(studio, page, shots):
     )
     images = modal.locator("img")
     ui.wait(lambda: images.count() == 3, 30, "three enlarged images")
-    widths = [images.nth(i).bounding_box()["width"] for i in range(3)]
     panel = expert_image(page).bounding_box()["width"]
-    assert min(widths[0], widths[2]) > 2 * panel, (widths, panel)
+
+    def widths() -> list[float]:  # an image not yet decoded has no width: wait for it, do not measure it
+        return [(images.nth(i).bounding_box() or {}).get("width", 0.0) for i in range(3)]
+
+    ui.wait(
+        lambda: min(widths()[0], widths()[2]) > 2 * panel,
+        30,
+        "the expert frames and the latent images drawn over twice the panel's width",
+        lambda: f"widths {widths()}, panel {panel}",
+    )
     ui.drawn(page, 3)
     ui.shot(page, shots / "enlarge-2-imitate-modal.png")
     ui.click(modal.get_by_role("button", name="Close"))
