@@ -149,9 +149,8 @@ class SimWorker:
         try:
             with self._lock:
                 owner = self._owners.get(session_id) or secrets.token_urlsafe(24)
-            replaced = self._close_session(
-                session_id, "re-opened"
-            )  # re-opening (by its owner) replaces the old session
+            # Re-opening (by its owner) replaces the old session.
+            replaced = self._close_session(session_id, "re-opened")
             try:
                 session = TeleopSession(
                     self.zsession,

@@ -66,8 +66,8 @@ def open_page(studio, ready: str = "ready. Drag the gizmo", viewport=(1100, 720)
 def in_background(pages) -> Iterator:
     """Pause the drawing of ``pages`` (THROTTLE_RAF pages) inside the block, as a browser pauses its background
     tabs: headless Chromium draws every open page in software, and a page loading beside one that draws waits
-    for the CPU (a second tab took 20–60 s to connect beside six busy processes, and over 120 s in an
-    overloaded test run)."""
+    for the CPU (a second tab took 11–50 s to connect and 23–59 s to be ready beside six busy processes, and
+    over 120 s in an overloaded test run)."""
     paused = [pg for pg in pages if not pg.is_closed()]
     for pg in paused:
         pg.evaluate(PAUSE_DRAWING)
