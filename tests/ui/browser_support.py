@@ -55,11 +55,50 @@ def open_page(studio, ready: str = "ready. Drag the gizmo", viewport=(1100, 720)
     with sync_playwright() as p:
         browser = launch(p)
         pg = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+        record_errors(pg)
         pg.add_init_script(THROTTLE_RAF)
         pg.goto(studio.url)
         pg.get_by_text(ready).filter(visible=True).first.wait_for(timeout=90_000)
         yield pg
         browser.close()
+
+
+#: The JavaScript errors a page reported (uncaught exceptions and console errors), by page: what a failed test's
+#: report lists, as a script that threw can leave a page that no longer applies what the studio sends.
+_ERRORS: dict = {}
+
+#: How the page's animation loop (through THROTTLE_RAF, which the page's drawing and message handling wait on) is
+#: doing: frames given in about three seconds, and whether the browser calls the page hidden or a test paused it.
+_FRAME_PROBE = """async () => {
+  const t0 = performance.now(); let frames = 0;
+  await new Promise((done) => {
+    const tick = () => { frames++; if (performance.now() - t0 < 3000) requestAnimationFrame(tick); else done(); };
+    requestAnimationFrame(tick);
+    setTimeout(done, 6000);
+  });
+  return {frames, ms: Math.round(performance.now() - t0), visibility: document.visibilityState,
+          paused: !!window.__studioBackground};
+}"""
+
+
+def record_errors(pg) -> None:
+    """Keep the JavaScript errors ``pg`` reports, for :func:`page_state`."""
+    _ERRORS[id(pg)] = errors = []
+    pg.on("pageerror", lambda e: errors.append(f"uncaught: {e}"))
+    pg.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
+
+
+def page_state(pg) -> str:
+    """One line on what a page is doing, for a failure report: its animation frames over about three seconds,
+    its visibility, and the last JavaScript errors it reported (if they were recorded)."""
+    s = pg.evaluate(_FRAME_PROBE)
+    line = f"{s['frames']} animation frames in {s['ms']} ms, {s['visibility']}"
+    line += ", drawing paused by the test" if s["paused"] else ""
+    errors = _ERRORS.get(id(pg))
+    if errors is not None:
+        last = " | ".join(e[:300] for e in errors[-3:])
+        line += f"; {len(errors)} JavaScript errors" + (f", the last: {last}" if errors else "")
+    return line
 
 
 @contextlib.contextmanager

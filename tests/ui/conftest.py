@@ -3,7 +3,7 @@ each other's state: ``shots`` (where screenshots go), ``data_dir`` (an empty dat
 it with the store its tests need), ``studio`` (the app with its embedded workers, on that directory) and
 ``page`` (headless Chromium on the studio, once it is ready). A failed browser test leaves a screenshot of each
 page it had open (``page``, and those in a test's ``opened`` list) as it was, named after the test, and prints
-where."""
+where, with a line on each page's animation frames and JavaScript errors (``browser_support.page_state``)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from browser_support import open_page, running_studio
+from browser_support import open_page, page_state, running_studio
 
 
 @pytest.hookimpl(wrapper=True, tryfirst=True)
@@ -33,6 +33,10 @@ def pytest_runtest_makereport(item, call):
                 report.sections.append(("screenshot of the failure", str(path)))
             except Exception as e:  # the page itself may be what failed
                 report.sections.append(("screenshot of the failure", f"not taken: {e}"))
+            try:
+                report.sections.append(("the page at the failure", page_state(pg)))
+            except Exception as e:
+                report.sections.append(("the page at the failure", f"not read: {e}"))
     return report
 
 
