@@ -55,7 +55,7 @@ def open_page(studio, ready: str = "ready. Drag the gizmo", viewport=(1100, 720)
     with sync_playwright() as p:
         browser = launch(p)
         pg = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
-        record_errors(pg)
+        watch_page(pg)
         pg.add_init_script(THROTTLE_RAF)
         pg.goto(studio.url)
         pg.get_by_text(ready).filter(visible=True).first.wait_for(timeout=90_000)
@@ -81,19 +81,62 @@ _FRAME_PROBE = """async () => {
 }"""
 
 
-def record_errors(pg) -> None:
-    """Keep the JavaScript errors ``pg`` reports, for :func:`page_state`."""
+#: Counts, in the page, the message batches viser's websocket worker hands the page and the main thread's long
+#: tasks (over 50 ms), for :func:`page_state`: whether what the studio sends is arriving, and how busy the page is.
+_TRAFFIC_PROBE = """(() => {
+  const t = (window.__studioTraffic = {batches: 0, messages: 0, last: null, long: []});
+  const Base = window.Worker;
+  window.Worker = class extends Base {
+    constructor(...args) {
+      super(...args);
+      this.addEventListener("message", (e) => {
+        if (e.data && e.data.type === "message_batch") {
+          t.batches++; t.messages += e.data.messages.length; t.last = performance.now();
+        }
+      });
+    }
+  };
+  try {
+    new PerformanceObserver((list) => {
+      for (const e of list.getEntries()) t.long.push([e.startTime, e.duration]);
+      if (t.long.length > 2000) t.long.splice(0, 1000);
+    }).observe({type: "longtask"});
+  } catch (e) {}
+})();"""
+
+_TRAFFIC_STATE = """() => {
+  const t = window.__studioTraffic, now = performance.now();
+  if (!t) return null;
+  const recent = t.long.filter(([start]) => start > now - 30000);
+  return {batches: t.batches, messages: t.messages, ago: t.last === null ? null : (now - t.last) / 1000,
+          long: recent.length, longS: recent.reduce((a, [, d]) => a + d, 0) / 1000,
+          longest: recent.reduce((a, [, d]) => Math.max(a, d), 0) / 1000};
+}"""
+
+
+def watch_page(pg) -> None:
+    """Keep the JavaScript errors ``pg`` reports and count the studio's messages it receives, for
+    :func:`page_state` (call before the page loads the studio)."""
+    pg.add_init_script(_TRAFFIC_PROBE)
     _ERRORS[id(pg)] = errors = []
     pg.on("pageerror", lambda e: errors.append(f"uncaught: {e}"))
     pg.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
 
 
 def page_state(pg) -> str:
-    """One line on what a page is doing, for a failure report: its animation frames over about three seconds,
-    its visibility, and the last JavaScript errors it reported (if they were recorded)."""
+    """One line on what a page is doing, for a failure report: its animation frames over about three seconds, its
+    visibility, and (for a page :func:`watch_page` watched) the studio's messages it received, its long tasks
+    and the last JavaScript errors it reported."""
     s = pg.evaluate(_FRAME_PROBE)
     line = f"{s['frames']} animation frames in {s['ms']} ms, {s['visibility']}"
     line += ", drawing paused by the test" if s["paused"] else ""
+    t = pg.evaluate(_TRAFFIC_STATE)
+    if t is not None:
+        ago = "never" if t["ago"] is None else f"the last {t['ago']:.1f} s ago"
+        line += (
+            f"; {t['batches']} message batches ({t['messages']} messages) received, {ago}; in the last 30 s"
+            f" {t['long']} long tasks, {t['longS']:.1f} s in all, the longest {t['longest']:.1f} s"
+        )
     errors = _ERRORS.get(id(pg))
     if errors is not None:
         last = " | ".join(e[:300] for e in errors[-3:])

@@ -181,7 +181,7 @@ def new_page(browser, studio, viewport=(1100, 720), opened: list | None = None):
     before = set(studio.tabs)
     others = list(opened or [])
     pg = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
-    ui.record_errors(pg)
+    ui.watch_page(pg)
     if opened is not None:
         opened.append(pg)
     pg.bring_to_front()  # the tab a person looks at (headless Chromium still draws the others: in_background)
