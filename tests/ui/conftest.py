@@ -3,7 +3,8 @@ each other's state: ``shots`` (where screenshots go), ``data_dir`` (an empty dat
 it with the store its tests need), ``studio`` (the app with its embedded workers, on that directory) and
 ``page`` (headless Chromium on the studio, once it is ready). A failed browser test leaves a screenshot of each
 page it had open (``page``, and those in a test's ``opened`` list) as it was, named after the test, and prints
-where, with a line on each page's animation frames and JavaScript errors (``browser_support.page_state``)."""
+where, with a line on each page's animation frames, the studio's messages it received, its long tasks and its
+JavaScript errors (``browser_support.page_state``)."""
 
 from __future__ import annotations
 
