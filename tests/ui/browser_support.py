@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import warnings
+import weakref
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -64,8 +65,9 @@ def open_page(studio, ready: str = "ready. Drag the gizmo", viewport=(1100, 720)
 
 
 #: The JavaScript errors a page reported (uncaught exceptions and console errors), by page: what a failed test's
-#: report lists, as a script that threw can leave a page that no longer applies what the studio sends.
-_ERRORS: dict = {}
+#: report lists, as a script that threw can leave a page that no longer applies what the studio sends. Held only
+#: as long as the page object is.
+_ERRORS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 #: How the page's animation loop (through THROTTLE_RAF, which the page's drawing and message handling wait on) is
 #: doing: frames given in about three seconds, and whether the browser calls the page hidden or a test paused it.
@@ -118,7 +120,7 @@ def watch_page(pg) -> None:
     """Keep the JavaScript errors ``pg`` reports and count the studio's messages it receives, for
     :func:`page_state` (call before the page loads the studio)."""
     pg.add_init_script(_TRAFFIC_PROBE)
-    _ERRORS[id(pg)] = errors = []
+    _ERRORS[pg] = errors = []
     pg.on("pageerror", lambda e: errors.append(f"uncaught: {e}"))
     pg.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
 
@@ -137,7 +139,7 @@ def page_state(pg) -> str:
             f"; {t['batches']} message batches ({t['messages']} messages) received, {ago}; in the last 30 s"
             f" {t['long']} long tasks, {t['longS']:.1f} s in all, the longest {t['longest']:.1f} s"
         )
-    errors = _ERRORS.get(id(pg))
+    errors = _ERRORS.get(pg)
     if errors is not None:
         last = " | ".join(e[:300] for e in errors[-3:])
         line += f"; {len(errors)} JavaScript errors" + (f", the last: {last}" if errors else "")
