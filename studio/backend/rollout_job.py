@@ -30,6 +30,8 @@ class RolloutJobSpec(msgspec.Struct, forbid_unknown_fields=True):
             ``<run-dir>/<name>``, see :func:`studio.eval.evaluation.register_checkpoint`).
         speed: simulated seconds per wall-clock second (1 = real time, so viewers see it live; 0 = as fast as
             possible).
+        plan_ticks: control ticks each plan may execute; None: the scene's protocol (Meta-World: the paper's 500,
+            as ``studio eval`` and ``studio results`` run it; no bound elsewhere), 0: no bound.
         inputs: content id of the job's inputs (:class:`~studio.backend.artifact_transfer.InputManifest`), which
             a worker with its own data dir fetches before the job runs (set by the hub's job client).
     """
@@ -42,6 +44,7 @@ class RolloutJobSpec(msgspec.Struct, forbid_unknown_fields=True):
     robot: Literal["panda", "sawyer"] | None = None
     checkpoint_id: Name | None = None
     speed: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 1.0
+    plan_ticks: Annotated[int, msgspec.Meta(ge=0, le=100_000)] | None = None
     inputs: ContentId | None = None
 
 
@@ -68,7 +71,7 @@ def run_rollout_job(ctx) -> dict:
     from studio.eval.evaluation import register_checkpoint
     from studio.eval.latents import attach_latent_images
     from studio.eval.planners import load_planner, process_cached
-    from studio.eval.rollout import run_rollout, store_rollout
+    from studio.eval.rollout import protocol_plan_ticks, run_rollout, store_rollout
     from studio.sim.env import make_env
     from studio.sim.tasks import get_task
 
@@ -83,6 +86,7 @@ def run_rollout_job(ctx) -> dict:
     task = get_task(spec.task)
     robot = spec.robot or ("sawyer" if task.scene == "metaworld" else "panda")
     replans = spec.replans
+    plan_ticks = protocol_plan_ticks(task.scene) if spec.plan_ticks is None else (spec.plan_ticks or None)
     store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     # One simulator per job, closed by the job's own thread: an EGL context current in one (still living)
     # thread cannot be made current in another, so a simulator shared across job threads fails to render.
@@ -114,6 +118,8 @@ def run_rollout_job(ctx) -> dict:
                 metrics = {f"wp{i}_{c}": float(v) for i, row in enumerate(wps) for c, v in zip("xyzg", row)}
                 ctx.progress(total_ticks[0], message=f"planned ({info['attempt'] + 1})", **metrics)
                 return
+            elif kind == "plan time up":
+                msg = f"plan {info['attempt'] + 1} used its {plan_ticks} control ticks"
             elif kind == "outcome":
                 msg = "success" if info["success"] else f"failed at {info['failure_stage']}"
             else:
@@ -160,6 +166,7 @@ def run_rollout_job(ctx) -> dict:
             on_event=on_event,
             on_tick=on_tick,
             should_stop=lambda: ctx.cancelled,
+            plan_ticks=plan_ticks,
         )
         ctx.raise_if_cancelled()
         checkpoint = spec.checkpoint
@@ -174,6 +181,8 @@ def run_rollout_job(ctx) -> dict:
         extra: dict[str, Any] = {"job": ctx.job, "checkpoint": ctx.hub_path(checkpoint)}
         if demo_score is not None:
             extra["demo_score"] = demo_score
+        if plan_ticks is not None:
+            extra["plan_ticks"] = plan_ticks
         record = store_rollout(
             store,
             out,
@@ -192,6 +201,7 @@ def run_rollout_job(ctx) -> dict:
             "episode_id": record.episode_id,
             "stages": out.stages,
             "demo_score": demo_score,
+            "plan_ticks": plan_ticks,
         }
     finally:
         env.close()

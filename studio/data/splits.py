@@ -35,6 +35,12 @@ class SplitSpec:
     replan_groups: tuple[str, ...] = ()
     """Test groups the paper's protocol re-plans on (Meta-World: ``hard``); the other test tasks get one attempt.
     ``studio results`` adds a row per policy evaluated that way."""
+    replan_budget: int = 0
+    """Re-plans the protocol allows a task of ``replan_groups`` (Meta-World: 3, the paper's 2,000 steps in plans of
+    500): what the studio's Imitate tab offers for such a task."""
+    plan_ticks: int | None = None
+    """Control ticks each plan may execute under the protocol (Meta-World: the paper's 500 steps); None: no bound.
+    The default of ``studio eval``, ``studio results``, ``studio compare`` and the studio's rollouts in this scene."""
 
     def __post_init__(self) -> None:
         overlap = set(self.train) & set(self.test)
@@ -55,11 +61,24 @@ class SplitSpec:
             raise ValueError(
                 f"split {self.scene!r}: replan_groups names groups it does not define: {sorted(unknown)}"
             )
+        if self.replan_budget < 0:
+            raise ValueError(f"split {self.scene!r}: replan_budget must be >= 0, got {self.replan_budget}")
+        if self.plan_ticks is not None and self.plan_ticks < 1:
+            raise ValueError(
+                f"split {self.scene!r}: plan_ticks must be >= 1 or absent, got {self.plan_ticks}"
+            )
 
     def replanned_tasks(self) -> tuple[str, ...]:
         """The test tasks of ``replan_groups``, in test order."""
         chosen = {t for g in self.replan_groups for t in self.test_groups[g]}
         return tuple(t for t in self.test if t in chosen)
+
+    def protocol_replans(self, task: str) -> int | None:
+        """Re-plans the split's protocol allows ``task``: ``replan_budget`` for a task of ``replan_groups``, 0 for
+        the other test tasks, None where the protocol says nothing (no ``replan_groups``, or a training task)."""
+        if not self.replan_groups or task not in self.test:
+            return None
+        return self.replan_budget if task in self.replanned_tasks() else 0
 
     def tasks(self, split: str) -> tuple[str, ...]:
         """The tasks a split draws from: training tasks for ``train`` and ``val``, held-out ones for ``test``."""
@@ -77,6 +96,8 @@ class SplitSpec:
             description=d.get("description", ""),
             test_groups={str(k): tuple(v) for k, v in d.get("test_groups", {}).items()},
             replan_groups=tuple(d.get("replan_groups", ())),
+            replan_budget=int(d.get("replan_budget", 0)),
+            plan_ticks=None if d.get("plan_ticks") is None else int(d["plan_ticks"]),
         )
 
 

@@ -8,9 +8,10 @@ index) a scene seed and a demonstration drawn from the store's expert episodes. 
 before anything runs, and both checkpoints (either may be ``oracle``) then roll out every episode, A and B one
 after the other, in the same pool of processes: a demonstration recorded meanwhile changes nothing, and since a
 rollout is deterministic for its (checkpoint, task, seed, demonstration) whatever process runs it, A and B differ
-only by their checkpoints. Every rollout is stored with its recording, under one evaluation id per side
-(``<compare-id>-a``, ``-b``) and tagged with the comparison in its ``extra``, so that the studio's *Compare* tab can
-play the two side by side.
+only by their checkpoints. Each plan's execution is bounded as the scene's protocol says (Meta-World: the paper's
+500 control ticks; :func:`studio.eval.rollout.protocol_plan_ticks`), as in ``studio eval``. Every rollout is stored
+with its recording, under one evaluation id per side (``<compare-id>-a``, ``-b``) and tagged with the comparison in
+its ``extra``, so that the studio's *Compare* tab can play the two side by side.
 
 The table has a row per episode — task, index, scene seed, demonstration, A's and B's outcome (✔, or ✘ and the
 stage it failed at) and the difference (``A only``, ``B only``, ``both``, ``neither`` succeeded) — differing rows
@@ -466,6 +467,7 @@ def compare(
         run_rollouts,
         with_demonstrations,
     )
+    from studio.eval.rollout import protocol_plan_ticks
     from studio.sim.tasks import get_task
 
     if episodes < 1:
@@ -508,6 +510,7 @@ def compare(
                 "compare_episodes": len(jobs),
                 "checkpoint": checkpoint,
             },
+            plan_ticks=protocol_plan_ticks(scene),
         )
         for k, (side, checkpoint) in enumerate((("a", checkpoint_a), ("b", checkpoint_b)))
     ]

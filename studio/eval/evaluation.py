@@ -5,7 +5,8 @@ task drawn (with a seed derived the same way) from the store's expert episodes â
 (uploaded videos and the simulated hand), so the agent (Panda) imitates another embodiment as in the paper;
 ``--expert-embodiment human`` draws from the human demonstrations only (Human-Franka), ``panda`` from the
 Panda's own (Two-Franka) â€” one planning call, execution with grasp correction,
-and up to ``--replan`` re-plans inside the same episode. Rollouts run in parallel worker processes; each is
+and up to ``--replan`` re-plans inside the same episode, each plan's execution bounded as the scene's protocol says
+(``--plan-ticks``; Meta-World: the paper's 500 control ticks). Rollouts run in parallel worker processes; each is
 stored (recording as an agent episode, plans and predicted latents in its folder) and indexed in the catalog.
 Every process plans on the same number of torch threads (``planners.PLANNING_THREADS``), so a rollout is the
 same bit for bit whatever ``--workers`` says.
@@ -660,15 +661,28 @@ PAPER_PLAN_TICKS = 500
 
 
 def add_plan_ticks_argument(parser: argparse.ArgumentParser) -> None:
-    """``--plan-ticks``: control ticks each plan may execute before it counts as failed."""
+    """``--plan-ticks``: control ticks each plan may execute before it counts as failed (:func:`plan_ticks_of`)."""
     parser.add_argument(
         "--plan-ticks",
         type=int,
         default=None,
         metavar="TICKS",
         help="control ticks each plan may execute; a plan cut there is a failed attempt, and the next re-plan "
-        f"starts from where the arm is (default: no bound; the paper's Meta-World protocol: {PAPER_PLAN_TICKS})",
+        "starts from where the arm is (default: the scene's protocol, the paper's "
+        f"{PAPER_PLAN_TICKS} in Meta-World and no bound elsewhere; 0: no bound)",
     )
+
+
+def plan_ticks_of(given: int | None, scene: str) -> int | None:
+    """``--plan-ticks`` as run: absent, the scene's protocol (:func:`studio.eval.rollout.protocol_plan_ticks`);
+    0, no bound; else as given. ``ValueError`` below 0."""
+    from studio.eval.rollout import protocol_plan_ticks
+
+    if given is None:
+        return protocol_plan_ticks(scene)
+    if given < 0:
+        raise ValueError(f"--plan-ticks must be >= 0 (0: no bound), got {given}")
+    return given or None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -710,8 +724,7 @@ def run(args: argparse.Namespace) -> int:
             scene = scene_of_task(names[0])  # task names give their scene; --scene is for the split words
         tasks = resolve_tasks(scene, names)
         experts = expert_embodiments_of(args)
-        if args.plan_ticks is not None and args.plan_ticks < 1:
-            raise ValueError(f"--plan-ticks must be >= 1, got {args.plan_ticks}")
+        plan_ticks = plan_ticks_of(args.plan_ticks, scene)
     except ValueError as err:
         print(f"studio eval: {err}", file=sys.stderr)
         return 2
@@ -727,7 +740,7 @@ def run(args: argparse.Namespace) -> int:
         keep=not args.no_store,
         expert_embodiments=experts,
         grasp=args.grasp_correction,
-        plan_ticks=args.plan_ticks,
+        plan_ticks=plan_ticks,
     )
     if args.json:
         print(json.dumps(report.to_dict(), default=float))
@@ -735,7 +748,8 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"eval {report.eval_id}  checkpoint={args.checkpoint}  replan={args.replan}  "
         f"experts={','.join(report.expert_embodiments)}  "
-        f"{report.rollouts} rollouts in {report.wall_s:.0f} s"
+        + (f"plan-ticks={plan_ticks}  " if plan_ticks is not None else "")
+        + f"{report.rollouts} rollouts in {report.wall_s:.0f} s"
     )
     print(
         f"{'task':32s} {'n':>4s} {'success':>8s} {'reached':>8s} {'grasped':>8s} {'placed':>8s} {'plan ms':>8s}"

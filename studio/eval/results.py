@@ -9,10 +9,11 @@ the scene's held-out tasks once, with the largest ``--replan`` budget and the sa
 same scenes and demonstrations; the rows of smaller budgets are those rollouts cut after fewer attempts
 (``evaluation.with_budget``: exact, since re-plans continue the same deterministic episode), which halves the
 cost of the usual ``--replan 0 2``. A split with ``replan_groups`` (Meta-World: hard) adds a row per policy in the
-paper's protocol: re-plans on those groups' tasks only, one attempt on the rest; its evaluation bounds each plan
-to the paper's 500 control ticks (``--plan-ticks``). Writes the Markdown (per-task success, the mean over each of
-the split's test groups — Meta-World's easy and hard, the layout of the paper's Table 1 — the
-reached/grasped/placed breakdown, planning time, wall time) and, beside it, the full JSON reports.
+paper's protocol: re-plans on those groups' tasks only, one attempt on the rest; each plan is bounded as the
+split's protocol says (its ``plan_ticks``: the paper's 500 control ticks in Meta-World; ``--plan-ticks``). Writes
+the Markdown (per-task success, the mean over each of the split's test groups — Meta-World's easy and hard, the
+layout of the paper's Table 1 — the reached/grasped/placed breakdown, planning time, wall time) and, beside it,
+the full JSON reports.
 ``oracle`` as a checkpoint gives the execution ceiling. ``--expert-embodiment`` picks whose demonstrations are
 imitated (``studio eval``'s option; e.g. ``human`` for Human-Franka, ``panda`` for Two-Franka).
 """
@@ -34,6 +35,7 @@ from studio.eval.evaluation import (
     add_grasp_correction_argument,
     evaluate,
     expert_embodiments_of,
+    plan_ticks_of,
     with_budget,
 )
 
@@ -152,8 +154,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         metavar="TICKS",
-        help="control ticks each plan may execute (default: the paper's "
-        f"{PAPER_PLAN_TICKS} for a split with replan_groups, Meta-World; no bound otherwise)",
+        help="control ticks each plan may execute (default: the split's protocol, the paper's "
+        f"{PAPER_PLAN_TICKS} in Meta-World and no bound elsewhere; 0: no bound)",
     )
     add_grasp_correction_argument(parser)
     add_expert_embodiment_argument(parser)
@@ -169,11 +171,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     tasks = resolve_tasks(args.scene, "held-out")
     split = load_split(args.scene)
-    plan_ticks = args.plan_ticks
-    if plan_ticks is None and split.replan_groups:
-        plan_ticks = PAPER_PLAN_TICKS  # the paper's protocol bounds each plan of a Meta-World episode
-    if plan_ticks is not None and plan_ticks < 1:
-        print(f"studio results: --plan-ticks must be >= 1, got {plan_ticks}", file=sys.stderr)
+    try:
+        plan_ticks = plan_ticks_of(args.plan_ticks, args.scene)
+    except ValueError as err:
+        print(f"studio results: {err}", file=sys.stderr)
         return 2
     reports: list[tuple[str, int | str, EvaluationReport]] = []
     # One evaluation per policy at the largest budget; the smaller budgets are its rollouts cut after fewer attempts.

@@ -50,6 +50,14 @@ GRASP_MODES = ("auto", "height", "centre", "off")
 STALL_TICKS = 10
 
 
+def protocol_plan_ticks(scene: str) -> int | None:
+    """The bound on one plan's execution under ``scene``'s protocol (its split's ``plan_ticks``; Meta-World: the
+    paper's 500 steps), None for a scene without one: what the studio's rollouts default to."""
+    from studio.data.splits import available_splits, load_split
+
+    return load_split(scene).plan_ticks if scene in available_splits() else None
+
+
 def grasp_controller(scene: str, mode: str = "auto") -> ControllerConfig:
     """The waypoint controller's settings for grasp correction ``mode`` (:data:`GRASP_MODES`) in ``scene``: ``auto``
     corrects with the grasp height in :data:`GRASP_CORRECTION_SCENES` and not at all elsewhere."""

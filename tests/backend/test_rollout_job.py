@@ -68,6 +68,7 @@ def test_rollout_job_streams_progress_and_poses_and_stores_the_rollout(hub, work
         sub.undeclare()
     result = w.result.result
     assert result["success"] and result["failure_stage"] is None
+    assert result["plan_ticks"] is None  # the tabletop scenes' protocol bounds no plan
     assert "planning" in messages and "waypoint 1 of 5" in messages and "success" in messages
     assert any(m.startswith("grasp correction") for m in messages)
     # Paced at 2x real time, a ~5 s rollout streams poses at up to 30 Hz for ~2.5 s; the stream drops frames
@@ -79,11 +80,38 @@ def test_rollout_job_streams_progress_and_poses_and_stores_the_rollout(hub, work
         assert store.load_frames(row.episode_id).shape[0] >= 20
 
 
+def test_a_bounded_plan_is_cut_and_said_so(hub, workers, demo):
+    """``plan_ticks`` bounds each plan's execution (None: the scene's protocol, which in Meta-World is the paper's
+    500); a plan cut there is a failed attempt, said in the job's progress, and the bound is kept with the rollout."""
+    root, expert = demo
+    workers.start("sim", "sim-4", "--data-dir", str(root), handlers=(), only_handlers=False)
+    wait_worker(hub.directory, "sim-4")
+    client = JobClient(hub.session)
+    messages: list[str] = []
+    spec = {"checkpoint": "oracle", "expert_episode_id": expert, "task": TASK, "seed": 4, "speed": 0.0}
+    job = client.submit("rollout", {**spec, "replans": 1, "plan_ticks": 30})
+    with client.watch(job.job, on_progress=lambda p: messages.append(p.message)) as w:
+        final = w.wait(timeout=120)
+        assert final.state == "succeeded", final.reason
+        w.wait(lambda w: w.result is not None, 10)
+    result = w.result.result
+    assert not result["success"] and result["replans"] == 1 and result["plan_ticks"] == 30
+    assert "plan 1 used its 30 control ticks" in messages and "plan 2 used its 30 control ticks" in messages
+    with EpisodeStore(root) as store:
+        (row,) = [r for r in store.catalog.rollouts(task=TASK) if r.id == result["rollout_id"]]
+        assert row.extra["plan_ticks"] == 30
+
+
 def test_bad_rollout_spec_fails_with_the_reason(hub, workers, demo):
     root, _ = demo
     workers.start("sim", "sim-2", "--data-dir", str(root), handlers=(), only_handlers=False)
     wait_worker(hub.directory, "sim-2")
     client = JobClient(hub.session)
+    with pytest.raises(bus.RemoteError, match=r"bad_request: .*plan_ticks"):
+        client.submit(
+            "rollout",
+            {"checkpoint": "oracle", "expert_episode_id": "e", "task": TASK, "seed": 1, "plan_ticks": -1},
+        )
     with pytest.raises(
         bus.RemoteError, match="bad_request: rollout job spec lacks"
     ) as e:  # refused on arrival

@@ -47,6 +47,22 @@ def test_metaworld_splits_follow_paper():
     assert set(ablation.train) < set(spec.train)
 
 
+def test_the_meta_world_protocol_is_the_papers_and_the_tabletop_scenes_have_none():
+    """The paper re-plans every 500 steps for up to 2,000 on the hard tasks only: three re-plans, each plan at most
+    500 control ticks; the easy tasks get one attempt. What the protocol says nothing of gets None."""
+    from studio.eval.evaluation import PAPER_PLAN_TICKS
+
+    for name in ("metaworld", "metaworld_ablation"):
+        spec = load_split(name)
+        assert spec.plan_ticks == PAPER_PLAN_TICKS == 500 and spec.replan_budget == 3
+        assert [spec.protocol_replans(t) for t in spec.test] == [0, 0, 3, 3]
+        assert spec.protocol_replans("metaworld/assembly-v3") is None  # a training task
+    for name in ("pick_place", "push"):
+        spec = load_split(name)
+        assert spec.plan_ticks is None and spec.replan_budget == 0
+        assert {spec.protocol_replans(t) for t in spec.test + spec.train} == {None}
+
+
 def test_split_from_file_and_errors(tmp_path):
     path = tmp_path / "mine.json"
     path.write_text(json.dumps({"scene": "pick_place", "train": ["pick_place/cube->red"], "test": []}))
@@ -57,6 +73,10 @@ def test_split_from_file_and_errors(tmp_path):
         SplitSpec("x", train=("a/b",), test=("a/c",), test_groups={"easy": ("a/b",)})
     with pytest.raises(ValueError, match=r"replan_groups names groups it does not define: \['hard'\]"):
         SplitSpec("x", train=("a/b",), test=("a/c",), test_groups={"easy": ("a/c",)}, replan_groups=("hard",))
+    with pytest.raises(ValueError, match="replan_budget must be >= 0, got -1"):
+        SplitSpec("x", train=("a/b",), test=(), replan_budget=-1)
+    with pytest.raises(ValueError, match="plan_ticks must be >= 1 or absent, got 0"):
+        SplitSpec.from_dict({"scene": "x", "train": ["a/b"], "plan_ticks": 0})
     with pytest.raises(ValueError, match="no split file"):
         load_split("kitchen")
     with pytest.raises(ValueError, match="split must be"):

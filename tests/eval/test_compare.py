@@ -316,3 +316,27 @@ def test_the_command_writes_the_table_and_its_json(store_root, tmp_path, capsys)
     assert text in capsys.readouterr().out
     data = json.loads(out.with_suffix(".json").read_text())
     assert data["totals"]["both"] == 1 and data["rows"][0]["a"]["success"] is True
+
+
+@pytest.mark.parametrize(("task", "bound"), [("metaworld/door-unlock-v3", 500), (TASK, None)])
+def test_both_sides_run_under_the_scenes_protocol(task, bound, tmp_path, monkeypatch):
+    """A Meta-World comparison bounds each plan at the paper's 500 control ticks, as `studio eval` and `studio
+    results` do; the tabletop scenes have no bound."""
+    import dataclasses
+
+    import studio.eval.evaluation as evaluation
+
+    seen = []
+
+    def drawn(store, jobs, experts):
+        return [dataclasses.replace(j, expert_episode_id="demo") for j in jobs]
+
+    def stop_before_rolling_out(work, **kwargs):
+        seen.extend(side.plan_ticks for _, side in work)
+        raise InterruptedError("stopped before any rollout")
+
+    monkeypatch.setattr(evaluation, "with_demonstrations", drawn)
+    monkeypatch.setattr(evaluation, "run_rollouts", stop_before_rolling_out)
+    with pytest.raises(InterruptedError, match="stopped before any rollout"):
+        compare("oracle", "oracle", [task], 1, 0, data_dir=tmp_path / "data")
+    assert seen == [bound, bound]

@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from studio.eval.evaluation import add_arguments, run
+import pytest
+
+from studio.eval.evaluation import EvaluationReport, add_arguments, run
 
 
 def _args(*argv: str) -> argparse.Namespace:
@@ -184,9 +186,59 @@ def test_the_report_reads_by_attribute_and_its_json_form_keeps_the_dict_shape(tm
     assert with_budget(bounded, 0).to_dict()["plan_ticks"] == 500
 
 
-def test_a_plan_tick_bound_below_one_is_refused(capsys, tmp_path):
-    assert run(_args("--plan-ticks", "0", "--data-dir", str(tmp_path))) == 2
-    assert "--plan-ticks must be >= 1, got 0" in capsys.readouterr().err
+def test_a_negative_plan_tick_bound_is_refused(capsys, tmp_path):
+    assert run(_args("--plan-ticks", "-1", "--data-dir", str(tmp_path))) == 2
+    assert "--plan-ticks must be >= 0 (0: no bound), got -1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv, bound",
+    [
+        (
+            ["--tasks", "metaworld/door-unlock-v3"],
+            500,
+        ),  # the scene's protocol: the paper's 500 steps per plan
+        (["--tasks", "held-out", "--scene", "metaworld"], 500),
+        (["--tasks", "metaworld/door-unlock-v3", "--plan-ticks", "0"], None),  # 0: no bound
+        (["--tasks", "metaworld/door-unlock-v3", "--plan-ticks", "300"], 300),
+        (["--tasks", "pick_place/bar->blue"], None),  # no protocol bound on the tabletop scenes
+    ],
+)
+def test_studio_eval_bounds_each_plan_as_the_scenes_protocol_unless_told(argv, bound, monkeypatch, capsys):
+    """`studio eval` runs a Meta-World task as `studio results` does (each plan at most 500 control ticks) and says
+    so in its first line; ``--plan-ticks`` overrides it, 0 lifting the bound."""
+    import studio.eval.evaluation as evaluation
+
+    seen = {}
+
+    def fake_evaluate(checkpoint, tasks, *args, plan_ticks=None, **kwargs):
+        seen["plan_ticks"] = plan_ticks
+        return EvaluationReport(
+            tasks={},
+            success=0.0,
+            rollouts=0,
+            mean_planning_ms=0.0,
+            eval_id="e",
+            checkpoint=checkpoint,
+            robot="sawyer",
+            scene="metaworld",
+            seed=0,
+            replan=0,
+            grasp_correction="auto",
+            expert_embodiments=("sawyer",),
+            episodes_per_task=1,
+            wall_s=0.0,
+            workers=1,
+            rows=(),
+            plan_ticks=plan_ticks,
+        )
+
+    monkeypatch.setattr(evaluation, "evaluate", fake_evaluate)
+    parser = argparse.ArgumentParser()
+    evaluation.add_arguments(parser)
+    assert evaluation.run(parser.parse_args(["--checkpoint", "oracle", *argv])) == 0
+    assert seen["plan_ticks"] == bound
+    assert (f"plan-ticks={bound}" in capsys.readouterr().out) == (bound is not None)
 
 
 def test_the_demonstrations_drawn_depend_on_what_was_collected_not_on_episode_ids(tmp_path):

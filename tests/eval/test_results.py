@@ -147,7 +147,7 @@ def test_paper_protocol_row_replans_on_the_hard_tasks_only():
 
 @pytest.mark.parametrize(
     ("scene", "given", "bound"),
-    [("metaworld", None, 500), ("pick_place", None, None), ("metaworld", 300, 300)],
+    [("metaworld", None, 500), ("pick_place", None, None), ("metaworld", 300, 300), ("metaworld", 0, None)],
 )
 def test_results_bound_each_plan_as_the_paper_on_meta_world(scene, given, bound, monkeypatch, capsys):
     """The paper's Meta-World protocol gives each plan 500 steps: `studio results` evaluates Meta-World so unless
@@ -163,7 +163,13 @@ def test_results_bound_each_plan_as_the_paper_on_meta_world(scene, given, bound,
     monkeypatch.setattr(results, "evaluate", fake_evaluate)
     parser = argparse.ArgumentParser()
     results.add_arguments(parser)
-    argv = ["--policy", "p=oracle", "--scene", scene, *(["--plan-ticks", str(given)] if given else [])]
+    argv = [
+        "--policy",
+        "p=oracle",
+        "--scene",
+        scene,
+        *(["--plan-ticks", str(given)] if given is not None else []),
+    ]
     assert results.run(parser.parse_args(argv)) == 0
     out = capsys.readouterr().out
     assert seen["plan_ticks"] == bound

@@ -20,6 +20,10 @@ the user's choice for that scene, else the scene's shipped policy, else the orac
 execution ceiling. The policy line names the policy of the selected task's scene (its measured summary is in the
 *About this policy* fold below it); a checkpoint chosen for a scene it was not trained on is refused with the
 reason, never run.
+
+Rollouts run as ``studio results`` measures them: a scene whose split has an evaluation protocol (Meta-World: the
+paper's) bounds each plan's execution (500 control ticks), and choosing one of its held-out tasks sets *Re-plans*
+to what the protocol allows it (3 on the hard tasks, none on the easy ones), said under the field.
 """
 
 from __future__ import annotations
@@ -74,6 +78,31 @@ def task_labels() -> dict[str, str]:
     return labels
 
 
+def protocol_replans(task: str) -> int | None:
+    """The re-plans ``task``'s scene's protocol allows it (its split's ``protocol_replans``); None where the
+    protocol says nothing (no protocol, a training task)."""
+    try:
+        return load_split(task.split("/", 1)[0]).protocol_replans(task)
+    except ValueError:
+        return None
+
+
+def protocol_text(task: str) -> str:
+    """The line under *Re-plans* for a held-out task of a scene whose split has an evaluation protocol (Meta-World:
+    the paper's); '' elsewhere, where the field keeps what the person chose."""
+    try:
+        split = load_split(task.split("/", 1)[0])
+    except ValueError:
+        return ""
+    replans = split.protocol_replans(task)
+    if replans is None:
+        bound = f"Each plan executes at most {split.plan_ticks} control ticks" if split.plan_ticks else ""
+        return f"*{bound}, as `studio results` measures this scene.*" if bound else ""
+    attempts = f"{replans} re-plans" if replans else "one attempt, no re-plans"
+    bound = f"; each plan executes at most {split.plan_ticks} control ticks" if split.plan_ticks else ""
+    return f"*How `studio results` measures this task: {attempts}{bound}.*"
+
+
 class ImitatePanel:
     """The *Imitate* tab."""
 
@@ -104,7 +133,7 @@ class ImitatePanel:
             hint="records the scene's scripted Sawyer expert (seed = Seed + 1000)",
         )
         self.seed = gui.add_number(
-            "Seed", initial_value=0, min=0, step=1, hint="the scene the Panda starts in"
+            "Seed", initial_value=0, min=0, step=1, hint="the scene the robot starts in"
         )
         self.replans = gui.add_number(
             "Re-plans",
@@ -114,6 +143,7 @@ class ImitatePanel:
             step=1,
             hint="re-plans allowed within the episode after a failed attempt",
         )
+        self.protocol_note = gui.add_markdown("")
         self.speed = gui.add_dropdown(
             "Speed",
             tuple(SPEEDS),
@@ -145,6 +175,7 @@ class ImitatePanel:
             np.full((20, 100, 3), 255, np.uint8), label="Predicted latent trajectory (decoded)", visible=False
         )
         self.latent_note = gui.add_markdown("")
+        self._apply_protocol()
         self.task.on_update(self._on_task_chosen)
         self.demo.on_update(lambda e: self._show_policy())  # a human video may have its own policy
         self.enlarge.on_click(lambda _: tab.run(self.open_enlarged, "enlarging the images"))
@@ -204,9 +235,21 @@ class ImitatePanel:
         return f"{summary}\n\nFile: `{ck.path}`"
 
     def _on_task_chosen(self, event: Any) -> None:
-        """Another task: its demonstrations and the policy that plans it."""
+        """Another task: its demonstrations, the policy that plans it and its scene's protocol."""
         self._fill_demos()
         self._show_policy()
+        self._apply_protocol()
+
+    def _apply_protocol(self) -> None:
+        """A held-out task of a scene whose split has an evaluation protocol (Meta-World: the paper's) gets that
+        protocol's re-plans, said under the field; execution bounds each plan as the protocol does."""
+        task = self.task_name
+        text, replans = protocol_text(task), protocol_replans(task)
+        if replans is not None:
+            self.replans.value = replans
+        if self._shown.get("protocol") != text:
+            self._shown["protocol"] = text
+            self.protocol_note.content = text
 
     def _show_policy(self) -> None:
         task, who = self.task_name, self.demonstrator()

@@ -7,7 +7,7 @@ import numpy as np
 
 from studio.ui.panels.compare import OpenedRollout, task_choices
 from studio.ui.panels.datasets import counts_table
-from studio.ui.panels.imitate import HELD_OUT, task_labels
+from studio.ui.panels.imitate import HELD_OUT, ImitatePanel, task_labels
 from studio.ui.panels.train import parse_overrides
 
 
@@ -35,6 +35,30 @@ def test_task_labels_mark_the_held_out_tasks():
     assert labels["pick_place/cube->red"] == "pick_place/cube->red"
     assert labels["push/blue-backward" + HELD_OUT] == "push/blue-backward"
     assert list(labels).index("pick_place/bar->blue" + HELD_OUT) < list(labels).index("pick_place/cube->red")
+
+
+def test_choosing_a_meta_world_task_sets_the_papers_re_plans_and_says_the_bound():
+    """Meta-World's held-out tasks get the paper's protocol in the Imitate tab: 3 re-plans on the hard ones, none on
+    the easy ones, each plan bounded at 500 control ticks, said under *Re-plans*; elsewhere the person's choice
+    stays and nothing is said (a Meta-World training task: only the bound)."""
+    panel = SimpleNamespace(
+        task_name="", replans=SimpleNamespace(value=2), protocol_note=SimpleNamespace(content=""), _shown={}
+    )
+
+    def choose(task: str) -> tuple[int, str]:
+        panel.task_name = task
+        ImitatePanel._apply_protocol(panel)
+        return panel.replans.value, panel.protocol_note.content
+
+    replans, note = choose("metaworld/door-unlock-v3")
+    assert replans == 3 and "3 re-plans; each plan executes at most 500 control ticks" in note
+    replans, note = choose("metaworld/button-press-v3")
+    assert replans == 0 and "one attempt, no re-plans; each plan executes at most 500 control ticks" in note
+    panel.replans.value = 2
+    replans, note = choose("metaworld/assembly-v3")
+    assert replans == 2 and note.startswith("*Each plan executes at most 500 control ticks")
+    replans, note = choose("pick_place/bar->blue")
+    assert replans == 2 and note == ""
 
 
 def test_the_imitate_policy_line_names_the_policy_of_the_tasks_scene(tmp_path):
