@@ -9,6 +9,8 @@ same spec is this plan.
 The result is written to ``<data-dir>/plans/<job>.npz`` (arrays do not belong in the job journal):
 
 * ``waypoints_world``, ``waypoints_cam``: (5, 4) xyz + gripper probability;
+* ``waypoints_commanded``: (5, 4) the targets the controller will command for them and the gripper state it
+  holds there (:func:`studio.sim.waypoints.commanded_waypoints`): what the UI draws;
 * ``agent_frame``: (H, W, 3) uint8, the observation planned from;
 * ``expert_indices``: indices of the expert frames the model saw (evenly spaced, first and last kept);
 * ``latent_images``: (S, h, w, 3) uint8 decoded latent states (only with a decoder);
@@ -98,6 +100,7 @@ def run_plan_job(ctx) -> dict[str, Any]:
     from studio.eval.planners import load_planner, process_cached
     from studio.sim.env import make_env
     from studio.sim.tasks import get_task
+    from studio.sim.waypoints import commanded_waypoints
 
     parsed = parse_spec(dict(ctx.spec))
     if ctx.data_dir is None:
@@ -122,12 +125,14 @@ def run_plan_job(ctx) -> dict[str, Any]:
         t0 = time.perf_counter()
         plan = planner.plan(expert, frame, cam.K, cam.T_world_cam)
         seconds = time.perf_counter() - t0
+        commanded = commanded_waypoints(env, plan.waypoints_world)
     finally:
         env.close()
     n_seen = int(getattr(getattr(planner, "cfg", None), "n_expert_frames", 10))
     arrays = {
         "waypoints_world": np.asarray(plan.waypoints_world, dtype=np.float64),
         "waypoints_cam": np.asarray(plan.waypoints_cam, dtype=np.float64),
+        "waypoints_commanded": commanded,
         "agent_frame": frame,
         "expert_indices": expert_indices(len(expert), n_seen),
         "K": np.asarray(cam.K, dtype=np.float64),

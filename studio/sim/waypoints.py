@@ -52,6 +52,33 @@ def gripper_flags(waypoints: np.ndarray) -> np.ndarray:
     return flags
 
 
+def commanded_waypoints(
+    env: SimEnv, waypoints: np.ndarray, config: ControllerConfig | None = None
+) -> np.ndarray:
+    """The (K, 4) targets :meth:`WaypointController.execute` will command for the waypoints from ``env``'s state
+    now: each position clipped to the studio's workspace and to the scene's own bounds (Meta-World's mocap box), a
+    grasp no lower than the robot's lowest grasp, and the gripper state held on arrival (1 closed, 0 open;
+    :func:`gripper_flags`). A plan may put points outside the workspace (a guided plan extrapolates): these are
+    where the arm is sent instead. Grasp correction may still move a grasp, by what the wrist camera then sees, and
+    a target inside the workspace may still lie beyond what the arm's joints reach."""
+    cfg = config or ControllerConfig()
+    wps = np.asarray(waypoints, dtype=np.float64).reshape(-1, 4)
+    flags = gripper_flags(wps)
+    scene_box = getattr(env, "workspace", None)
+    closed = env.gripper_cmd >= GRIPPER_THRESHOLD
+    out = np.empty_like(wps)
+    for i, w in enumerate(wps):
+        pos = w[:3].copy()
+        if flags[i] and not closed:  # a grasp
+            pos[2] = max(pos[2], cfg.min_grasp_z.get(env.robot, 0.03))
+        closed = bool(flags[i])
+        pos = np.clip(pos, WORKSPACE[0], WORKSPACE[1])
+        if scene_box is not None:
+            pos = np.clip(pos, scene_box[0], scene_box[1])
+        out[i, :3], out[i, 3] = pos, float(closed)
+    return out
+
+
 @dataclass
 class ControllerConfig:
     """Tuning of the waypoint controller.

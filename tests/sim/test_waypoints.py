@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from studio.sim.experts import expert_waypoints
-from studio.sim.waypoints import ControllerConfig, WaypointController
+from studio.sim.waypoints import ControllerConfig, WaypointController, commanded_waypoints
 
 
 def test_reaches_given_waypoints(env_factory):
@@ -127,3 +127,47 @@ def test_each_waypoint_moves_for_at_most_its_share_of_a_plans_ticks(env_factory)
     env.reset("pick_place/cube->red", 2)
     short = ctl.execute(far, waypoint_ticks=30)
     assert not short.reached[1] and short.ticks <= 90
+
+
+def test_commanded_waypoints_are_where_the_controller_takes_the_arm(env_factory):
+    """A plan outside the workspace (below the table, past its edges) is commanded to the clipped points, a grasp
+    no lower than the robot's lowest grasp, with the gripper flags the controller holds; the hand ends at the last
+    commanded point, not at the predicted one."""
+    env = env_factory("pick_place", "panda")
+    env.reset("pick_place/cube->red", 2)
+    wps = np.array(
+        [
+            [0.10, 0.45, 0.20, 0.2],
+            [0.70, 0.45, 0.15, 0.9],  # past the workspace's +x edge (0.45), and a grasp
+            [0.00, 0.50, -0.20, 0.8],  # below the table
+            [0.30, 0.45, 0.90, 0.1],  # above its ceiling (0.55), and a release
+        ]
+    )
+    reach = commanded_waypoints(env, wps)
+    assert np.allclose(reach[0], [0.10, 0.45, 0.20, 0.0])
+    assert np.allclose(reach[1], [0.45, 0.45, 0.15, 1.0])
+    # The workspace's floor; the release planned at the next, higher waypoint happens down here (gripper_flags).
+    assert np.allclose(reach[2], [0.00, 0.50, 0.012, 0.0])
+    assert np.allclose(reach[3], [0.30, 0.45, 0.55, 0.0])
+    low = commanded_waypoints(env, [[0.1, 0.45, 0.0, 0.0], [0.1, 0.45, 0.0, 1.0]])
+    assert np.allclose(low[:, 2], [0.012, 0.045])  # a grasp stays above the Panda's lowest grasp
+    WaypointController(env, ControllerConfig(grasp_correction=False)).execute(wps)
+    assert np.linalg.norm(env.ee_pos - reach[-1, :3]) < 0.02, (env.ee_pos, reach[-1])
+
+
+def test_commanded_waypoints_keep_to_the_meta_world_mocap_box():
+    """Meta-World bounds the hand's target to its task's mocap box, inside the studio's workspace on some sides."""
+    from studio.sim.env import WORKSPACE, make_env
+
+    env = make_env("metaworld", "sawyer")
+    try:
+        env.reset("metaworld/door-unlock-v3", 0)
+        low, high = env.workspace
+        reach = commanded_waypoints(env, [[2.0, -2.0, 2.0, 0.0], [-2.0, 2.0, -2.0, 0.0]])
+        assert np.allclose(reach[0, :3], np.minimum(np.maximum([2.0, -2.0, 2.0], low), high).clip(*WORKSPACE))
+        assert np.allclose(
+            reach[1, :3], np.minimum(np.maximum([-2.0, 2.0, -2.0], low), high).clip(*WORKSPACE)
+        )
+        assert (reach[:, :3] >= low - 1e-9).all() and (reach[:, :3] <= high + 1e-9).all()
+    finally:
+        env.close()

@@ -17,6 +17,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import browser_support as ui
 
+from studio.sim.env import WORKSPACE
+
 TASK = "metaworld/door-unlock-v3"
 EASY = "metaworld/button-press-v3"
 
@@ -52,8 +54,22 @@ def test_a_held_out_meta_world_task_runs_under_the_papers_protocol(studio, page,
     ui.click(page.get_by_role("button", name="Plan", exact=True))
     page.get_by_text("Planned in").filter(visible=True).first.wait_for(timeout=120_000)
     assert im.plan_wps is not None and im.plan_wps.shape == (5, 4) and np.isfinite(im.plan_wps).all()
+    # The spheres stand where the controller sends the arm; what the model put outside the workspace is said.
+    with np.load(studio.data_dir / im.plan_job.result["path"]) as data:
+        predicted = data["waypoints_world"]
+    assert ((im.plan_wps[:, :3] >= WORKSPACE[0]) & (im.plan_wps[:, :3] <= WORKSPACE[1])).all(), im.plan_wps
+    nodes = {h.name: np.asarray(h.position) for h in ui.tab(studio).view._overlays["plan"]}
+    spheres = np.array([nodes[f"/overlay/plan/wp{i}"] for i in range(5)])
+    assert np.allclose(spheres, im.plan_wps[:, :3], atol=1e-5), spheres
+    # This guided plan extrapolates: its waypoints lie below the table and past the far edge (tens of centimetres).
+    out = np.flatnonzero(np.linalg.norm(predicted[:, :3] - im.plan_wps[:, :3], axis=1) > 0.01)
+    assert len(out) >= 3, (predicted, im.plan_wps)
+    page.get_by_text("outside the workspace").filter(visible=True).first.wait_for(timeout=30_000)
+    assert (
+        f"waypoints {', '.join(str(i + 1) for i in out[:-1])} and {out[-1] + 1} outside" in im.status.content
+    )
     ui.drawn(page)
-    ui.shot(page, shots / "metaworld-plan.png")
+    ui.shot(page, shots / "metaworld-plan.png", scroll_to="outside the workspace")
     fast = "as fast as possible"
     ui.choose(page, "Speed", fast, lambda: im.speed.value == fast, "the speed", lambda: im.speed.value)
     ui.click(page.get_by_role("button", name="Execute", exact=True))

@@ -2,7 +2,9 @@
 
 *Plan* runs a ``plan`` job: the scene of (task, seed) is shown, then the expert frames the model saw, the
 agent's first frame, the predicted latent trajectory decoded to images (when the checkpoint has a
-decoder) and the 5 waypoints as spheres joined by a spline (green: gripper open, red: closed).
+decoder) and the 5 waypoints as spheres joined by a spline (green: gripper open, red: closed), drawn at the
+targets the controller will command and with the gripper state it will hold there: a waypoint the model put
+outside the workspace (a guided plan may extrapolate) is drawn where the arm is sent and named in the status line.
 *Execute* runs a ``rollout`` job paced at real time: its poses stream into the scene, the waypoint being
 executed is enlarged, every re-plan's waypoints replace the drawn ones, and the outcome is shown.
 Re-planning continues the same episode inside the rollout (``Re-plans`` allowed); *Re-plan* after a
@@ -76,6 +78,21 @@ def task_labels() -> dict[str, str]:
         for t in sorted(tasks, key=lambda t: t not in held):
             labels[t + (HELD_OUT if t in held else "")] = t
     return labels
+
+
+def workspace_note(predicted: np.ndarray, commanded: np.ndarray, tolerance: float = 0.01) -> str:
+    """A sentence naming the waypoints the model put outside the workspace (more than ``tolerance`` metres from the
+    target the controller commands, :func:`studio.sim.waypoints.commanded_waypoints`), which the scene draws where
+    the arm is sent; '' when every waypoint is inside."""
+    off = np.linalg.norm(np.asarray(predicted)[:, :3] - np.asarray(commanded)[:, :3], axis=1)
+    far = [str(i + 1) for i in np.flatnonzero(off > tolerance)]
+    if not far:
+        return ""
+    names = far[0] if len(far) == 1 else ", ".join(far[:-1]) + " and " + far[-1]
+    return (
+        f" The model put waypoint{'s' if len(far) > 1 else ''} {names} outside the workspace (up to "
+        f"{off.max() * 100:.0f} cm out): drawn where the arm is sent."
+    )
 
 
 def protocol_replans(task: str) -> int | None:
@@ -445,7 +462,10 @@ class ImitatePanel:
     def _show_plan(self, tracked) -> None:
         result = tracked.result or {}
         data = np.load(self.app.data_dir / result["path"])
-        self.plan_wps = data["waypoints_world"]
+        predicted = np.asarray(data["waypoints_world"])
+        self.plan_wps = (
+            np.asarray(data["waypoints_commanded"]) if "waypoints_commanded" in data else predicted
+        )
         if tracked.spec["expert_episode_id"] != self.shown_demo():
             self.plan_wps = None  # planned from a demonstration no longer chosen: not shown
             self.status.content = (
@@ -478,9 +498,13 @@ class ImitatePanel:
             self.latent_note.content = f"No decoded latent images: {why}."
         grip = " ".join("●" if g > 0.5 else "○" for g in self.plan_wps[:, 3])
         self.status.content = (
-            f"Planned in {result.get('planning_time_s', 0.0) * 1e3:.0f} ms. Waypoints 1–5, gripper {grip} "
-            "(● closed). **Execute** to run it."
-        ) + guidance_note(result.get("guidance"))
+            (
+                f"Planned in {result.get('planning_time_s', 0.0) * 1e3:.0f} ms. Waypoints 1–5, gripper {grip} "
+                "(● closed). **Execute** to run it."
+            )
+            + workspace_note(predicted, self.plan_wps)
+            + guidance_note(result.get("guidance"))
+        )
         self.score_note.content = demo_score_note(result.get("demo_score"))
 
     def execute(self):
