@@ -74,7 +74,6 @@ def run_rollout_job(ctx) -> dict:
     from studio.eval.rollout import protocol_plan_ticks, run_rollout, store_rollout
     from studio.sim.env import make_env
     from studio.sim.tasks import get_task
-    from studio.sim.waypoints import commanded_waypoints
 
     spec = parse_spec(dict(ctx.spec))
     if ctx.data_dir is None:
@@ -116,7 +115,7 @@ def run_rollout_job(ctx) -> dict:
             elif kind == "planned":
                 # The plan's waypoints ride along as metrics (wp<i>_x/y/z/g) so viewers can draw every re-plan live,
                 # at the targets the controller commands (the stored plan keeps what the model predicted).
-                wps = commanded_waypoints(env, np.asarray(info["waypoints"], dtype=float).reshape(-1, 4))
+                wps = np.asarray(info["commanded"], dtype=float).reshape(-1, 4)
                 metrics = {f"wp{i}_{c}": float(v) for i, row in enumerate(wps) for c, v in zip("xyzg", row)}
                 ctx.progress(total_ticks[0], message=f"planned ({info['attempt'] + 1})", **metrics)
                 return

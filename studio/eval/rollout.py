@@ -35,7 +35,7 @@ from studio.data.forks import write_states
 from studio.sim.env import SimEnv
 from studio.sim.recorder import Recorder
 from studio.sim.recording import Recording
-from studio.sim.waypoints import ControllerConfig, WaypointController
+from studio.sim.waypoints import ControllerConfig, WaypointController, commanded_waypoints
 
 #: Failure stages, in the order a rollout passes them (the paper's breakdown).
 STAGES = ("reached", "grasped", "placed")
@@ -95,6 +95,9 @@ class PlanRecord:
     guided: bool = False
     #: the guidance that made a guided plan (``PlanResult.guidance_scale``); None when not guided.
     guidance_scale: float | None = None
+    #: (K, 4) the targets the controller commanded for the waypoints from where the arm stood (workspace-clipped,
+    #: gripper flags as held: :func:`studio.sim.waypoints.commanded_waypoints`).
+    waypoints_commanded: np.ndarray | None = None
 
 
 @dataclass
@@ -202,6 +205,7 @@ def run_rollout(
         result = planner.plan(expert_frames, frame, cam.K, cam.T_world_cam)
         dt = time.perf_counter() - t0
         wps = np.asarray(result.waypoints_world, dtype=np.float64)
+        commanded = commanded_waypoints(env, wps, cfg)
         plans.append(
             PlanRecord(
                 waypoints_world=wps,
@@ -215,9 +219,13 @@ def run_rollout(
                 guidance_surprise=getattr(result, "guidance_surprise", None),
                 guided=bool(getattr(result, "guided", False)),
                 guidance_scale=getattr(result, "guidance_scale", None),
+                waypoints_commanded=commanded,
             )
         )
-        event("planned", {"attempt": attempt, "waypoints": wps.tolist(), "seconds": dt})
+        event(
+            "planned",
+            {"attempt": attempt, "waypoints": wps.tolist(), "commanded": commanded.tolist(), "seconds": dt},
+        )
         controller.execute(wps, None if plan_ticks is None else plan_ticks // max(1, len(wps)))
         if attempt_state["cut"] and not attempt_state["stopped"]:
             event("plan time up", {"attempt": attempt, "ticks": attempt_state["ticks"]})
@@ -293,6 +301,8 @@ def store_rollout(
                 arrays[f"plan{i}_guidance_surprise"] = np.array(p.guidance_surprise)
             if p.guidance_scale is not None:
                 arrays[f"plan{i}_guidance_scale"] = np.array(p.guidance_scale)
+            if p.waypoints_commanded is not None:
+                arrays[f"plan{i}_waypoints_commanded"] = np.asarray(p.waypoints_commanded)
         arrays["plan_start_ticks"] = np.array([p.start_tick for p in out.plans])
         arrays["plan_seconds"] = np.array([p.planning_time_s for p in out.plans])
         np.savez_compressed(tmp / "plans.npz", allow_pickle=False, **arrays)

@@ -130,6 +130,35 @@ def test_within_a_plans_tick_bound_each_waypoint_gets_its_share_and_a_blocked_on
     assert sum(k == "stalled" for k, _ in bounded.events) >= 3
 
 
+class BelowTheTable:
+    """Plans a waypoint below the table and one past the workspace's far edge (as a guided plan may)."""
+
+    def plan(self, expert_frames, agent_frame, K, T_world_cam):
+        wps = np.array([[0.0, 0.5, 0.2, 0.0], [0.0, 0.5, -0.2, 0.0], [0.0, 1.4, 0.2, 0.0]])
+        return type("P", (), {"waypoints_world": wps})()
+
+
+def test_each_plan_keeps_the_targets_the_controller_commanded_beside_the_prediction(env, tmp_path):
+    """What the page draws and Inspect replays is where the arm was sent: the stored plan has the model's waypoints
+    and the commanded ones (clipped to the workspace), and the live "planned" event carries both."""
+    from studio.eval.rollout import store_rollout
+
+    frames = np.zeros((10, 240, 320, 3), np.uint8)
+    out = run_rollout(env, BelowTheTable(), frames, "pick_place/bar->blue", 5)
+    plan = out.plans[0]
+    assert np.allclose(
+        plan.waypoints_commanded[:, :3], [[0.0, 0.5, 0.2], [0.0, 0.5, 0.012], [0.0, 0.95, 0.2]]
+    )
+    (planned,) = [info for kind, info in out.events if kind == "planned"]
+    assert np.allclose(planned["commanded"], plan.waypoints_commanded)
+    assert np.allclose(planned["waypoints"], plan.waypoints_world)
+    with EpisodeStore(tmp_path / "data") as store:
+        record = store_rollout(store, out, expert_episode_id=None, checkpoint_id=None)
+        with np.load(Path(record.path) / "plans.npz") as stored:
+            assert np.allclose(stored["plan0_waypoints_commanded"], plan.waypoints_commanded)
+            assert np.allclose(stored["plan0_waypoints_world"], plan.waypoints_world)
+
+
 def test_failure_stage_order():
     assert failure_stage({"reached": True, "grasped": True, "placed": True}) is None
     assert failure_stage({"reached": True, "grasped": False, "placed": False}) == "grasp"

@@ -92,3 +92,27 @@ def test_a_held_out_meta_world_task_runs_under_the_papers_protocol(studio, page,
     assert len(starts) == result["replans"] + 1
     ends = [*starts[1:], row.num_steps - 1]
     assert all(0 < e - s <= 500 for s, e in zip(starts, ends)), (starts, row.num_steps)
+    # Inspect replays it with the plan where the arm was sent, and says which waypoints the model put outside.
+    ins = ui.tab(studio).inspector
+    ui.open_tab(page, "Inspect", "Every rollout")
+    ui.wait(lambda: any(o.startswith(row.id) for o in ins.rollout.options), 30, "the rollout listed")
+    option = next(o for o in ins.rollout.options if o.startswith(row.id))
+    if ins.rollout.value != option:
+        ui.choose(
+            page,
+            "Rollout",
+            option,
+            lambda: ins.rollout.value == option,
+            "the rollout",
+            lambda: ins.rollout.value,
+        )
+    ui.click_and_see(page, page.get_by_role("button", name="Open", exact=True).first, "Stages:")
+    ins.timeline.slider.value = 1
+    ui.wait(lambda: "Plan 1 of" in ins.plan_info.content, 30, "the first plan", lambda: ins.plan_info.content)
+    assert "outside the workspace" in ins.plan_info.content, ins.plan_info.content
+    nodes = {h.name: np.asarray(h.position) for h in ui.tab(studio).view._overlays["plan"]}
+    drawn = np.array([nodes[f"/overlay/plan/wp{i}"] for i in range(5)])
+    with np.load(Path(row.path) / "plans.npz") as plans:
+        assert np.allclose(drawn, plans["plan0_waypoints_commanded"][:, :3], atol=1e-5)
+        assert np.allclose(plans["plan0_waypoints_commanded"], im.plan_wps)  # the plan Imitate drew
+    ui.shot(page, shots / "metaworld-inspect.png", scroll_to="outside the workspace")

@@ -43,6 +43,7 @@ from studio.ui.demo_score_note import demo_score_note
 from studio.ui.guidance_note import guidance_note
 from studio.ui.images import ENLARGED_HEIGHT, filmstrip, open_enlarged, thumbnail
 from studio.ui.runs import SCENES, Checkpoint, SceneMismatch
+from studio.ui.workspace_note import workspace_note
 
 HINT = """Choose a **task** (held-out ones were never trained on), a **demonstration** of it and a scene
 **seed**. **Plan** shows what the model sees and predicts; **Execute** runs it on the Franka Panda
@@ -78,21 +79,6 @@ def task_labels() -> dict[str, str]:
         for t in sorted(tasks, key=lambda t: t not in held):
             labels[t + (HELD_OUT if t in held else "")] = t
     return labels
-
-
-def workspace_note(predicted: np.ndarray, commanded: np.ndarray, tolerance: float = 0.01) -> str:
-    """A sentence naming the waypoints the model put outside the workspace (more than ``tolerance`` metres from the
-    target the controller commands, :func:`studio.sim.waypoints.commanded_waypoints`), which the scene draws where
-    the arm is sent; '' when every waypoint is inside."""
-    off = np.linalg.norm(np.asarray(predicted)[:, :3] - np.asarray(commanded)[:, :3], axis=1)
-    far = [str(i + 1) for i in np.flatnonzero(off > tolerance)]
-    if not far:
-        return ""
-    names = far[0] if len(far) == 1 else ", ".join(far[:-1]) + " and " + far[-1]
-    return (
-        f" The model put waypoint{'s' if len(far) > 1 else ''} {names} outside the workspace (up to "
-        f"{off.max() * 100:.0f} cm out): drawn where the arm is sent."
-    )
 
 
 def protocol_replans(task: str) -> int | None:

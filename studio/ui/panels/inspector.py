@@ -21,13 +21,14 @@ from studio.ui.demo_score_note import demo_score_note
 from studio.ui.guidance_note import guidance_note
 from studio.ui.images import side_by_side, thumbnail
 from studio.ui.timeline import Timeline
+from studio.ui.workspace_note import workspace_note
 
 HINT = """Every rollout (from *Imitate* or `studio eval`) is stored. Filter them, **Open** one and drag the
 timeline: the scene, the camera frame and the plan in force at that moment follow. Failures come first,
 with the stage they failed at. **Fork at this step** continues the rollout from that moment in a teleop
 session: drag the correction and save it as a new episode of the task."""
 FORKING = "**● Recording the fork** — drag the gizmo in the scene, then save it (or discard it)."
-ROLES: dict[str, Role] = {"agent episode (Panda trajectory)": "agent", "expert demonstration": "expert"}
+ROLES: dict[str, Role] = {"agent episode (the robot's trajectory)": "agent", "expert demonstration": "expert"}
 
 ALL = "(all)"
 OUTCOMES = (ALL, "failures", "successes")
@@ -267,14 +268,19 @@ class InspectorPanel:
         text = f"Step {step} of {self.replay.num_steps - 1}; camera frame {fi + 1} of {len(self.frames)}."
         if k is not None:
             wps = self.plans.get(f"plan{k}_waypoints_world")
+            commanded = self.plans.get(
+                f"plan{k}_waypoints_commanded"
+            )  # absent in rollouts stored before it was
             null = self.plans.get(f"plan{k}_null_waypoints_world")
             if self.tab.token == self._token:
                 if wps is not None:
-                    self.tab.view.show_waypoints("plan", wps)
+                    self.tab.view.show_waypoints("plan", wps if commanded is None else commanded)
                 self.tab.view.show_null_plan(null)
             starts = np.asarray(self.plans["plan_start_ticks"])
             end = int(starts[k + 1]) if k + 1 < len(starts) else self.replay.num_steps - 1
             text += f" Plan {k + 1} of {len(starts)} (from step {int(starts[k])})."
+            if wps is not None and commanded is not None:
+                text += workspace_note(wps, commanded)
             if null is not None and wps is not None:
                 gain = self.plans.get(f"plan{k}_guidance_gain")
                 surprise = self.plans.get(f"plan{k}_guidance_surprise")

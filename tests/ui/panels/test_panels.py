@@ -7,7 +7,7 @@ import numpy as np
 
 from studio.ui.panels.compare import OpenedRollout, task_choices
 from studio.ui.panels.datasets import counts_table
-from studio.ui.panels.imitate import HELD_OUT, ImitatePanel, task_labels, workspace_note
+from studio.ui.panels.imitate import HELD_OUT, ImitatePanel, task_labels
 from studio.ui.panels.train import parse_overrides
 
 
@@ -212,16 +212,3 @@ def test_loss_curves_from_progress_messages_give_way_to_the_metrics_file_at_the_
     TrainPanel._show_curves(panel, tracked)
     assert panel.loss_plot.data[0][-1] == 4 and np.isfinite(panel.loss_plot.data[2]).all()
     assert np.allclose(panel.loss_plot.data[3], 0.1)
-
-
-def test_the_status_names_waypoints_the_model_put_outside_the_workspace():
-    predicted = np.array([[0.0, 0.5, 0.2, 0], [0.0, 0.5, -0.2, 1], [0.6, 0.5, 0.2, 1], [0.0, 0.5, 0.205, 0]])
-    commanded = predicted.copy()
-    commanded[1, 2], commanded[2, 0], commanded[3, 2] = 0.012, 0.45, 0.2  # the last 5 mm off: inside
-    assert workspace_note(predicted, commanded) == (
-        " The model put waypoints 2 and 3 outside the workspace (up to 21 cm out): drawn where the arm is sent."
-    )
-    assert workspace_note(predicted[2:], commanded[2:]).startswith(
-        " The model put waypoint 1 outside the workspace (up to 15 cm out)"
-    )
-    assert workspace_note(predicted, predicted) == ""
