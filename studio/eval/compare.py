@@ -357,6 +357,8 @@ class Comparison:
     workers: int
     wall_s: float
     rows: tuple[CompareRow, ...] = ()
+    #: Control ticks each plan could execute (the scene's protocol; None: no bound).
+    plan_ticks: int | None = None
 
     @property
     def eval_ids(self) -> tuple[str, str]:
@@ -369,7 +371,8 @@ class Comparison:
         head = (
             f"A = {self.label_a} (`{self.checkpoint_a}`), B = {self.label_b} (`{self.checkpoint_b}`): "
             f"{', '.join(self.tasks)}; {self.episodes} episodes per task, seed {self.seed}, {self.replan} re-plan(s), "
-            f"the same scene and demonstration for A and B in every row. Comparison `{self.compare_id}`, "
+            + (f"each plan at most {self.plan_ticks} control ticks, " if self.plan_ticks is not None else "")
+            + f"the same scene and demonstration for A and B in every row. Comparison `{self.compare_id}`, "
             f"{self.wall_s / 60:.1f} min.\n\n"
         )
         return head + render_markdown(self.rows, self.label_a, self.label_b)
@@ -392,7 +395,7 @@ class Comparison:
             "eval_ids": list(self.eval_ids),
             "totals": self.totals().to_dict(),
             "rows": [r.to_dict() for r in self.rows],
-        }
+        } | ({} if self.plan_ticks is None else {"plan_ticks": self.plan_ticks})
 
 
 def default_label(checkpoint: str) -> str:
@@ -498,6 +501,7 @@ def compare(
             ids[k] = register_checkpoint(root, checkpoint)
     labels = (label_a or default_label(checkpoint_a), label_b or default_label(checkpoint_b))
     compare_id = f"cmp-{uuid.uuid4().hex[:10]}"
+    plan_ticks = protocol_plan_ticks(scene)
     sides = [
         PolicyRun(
             checkpoint,
@@ -510,7 +514,7 @@ def compare(
                 "compare_episodes": len(jobs),
                 "checkpoint": checkpoint,
             },
-            plan_ticks=protocol_plan_ticks(scene),
+            plan_ticks=plan_ticks,
         )
         for k, (side, checkpoint) in enumerate((("a", checkpoint_a), ("b", checkpoint_b)))
     ]
@@ -552,6 +556,7 @@ def compare(
         max(1, min(workers, len(work))),
         time.perf_counter() - started,
         tuple(order_rows(rows)),
+        plan_ticks,
     )
 
 

@@ -17,6 +17,7 @@ from studio.data.collect import CollectConfig, collect
 from studio.data.store import EpisodeStore
 from studio.eval.compare import (
     CompareRow,
+    Comparison,
     Outcome,
     compare,
     order_rows,
@@ -340,3 +341,8 @@ def test_both_sides_run_under_the_scenes_protocol(task, bound, tmp_path, monkeyp
     with pytest.raises(InterruptedError, match="stopped before any rollout"):
         compare("oracle", "oracle", [task], 1, 0, data_dir=tmp_path / "data")
     assert seen == [bound, bound]
+    said = Comparison(
+        "c", "oracle", "oracle", "A", "B", "metaworld", "sawyer", (task,), 1, 0, 3, 1, 1.0, (), bound
+    )
+    assert ("each plan at most 500 control ticks" in said.markdown()) == (bound is not None)
+    assert said.to_dict().get("plan_ticks") == bound
