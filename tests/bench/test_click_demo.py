@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -61,11 +62,15 @@ def test_two_presses_make_a_double_click(page):
 
 
 def test_a_click_playwright_cannot_make_in_time_is_pressed_and_says_what_playwright_waited_for(page):
-    # Playwright names what it waits for only after its first check; a loaded machine can spend a second before it
-    # (a fresh clone's run met that), so it gets 3 s, and the button stays disabled 2 s beyond them.
+    # What Playwright last logged of the element when it gave up: the result of its latest check ("element is not
+    # enabled"), or, when a loaded machine kept it from making one within the wait (two fresh-clone runs met that,
+    # at 1 s and at 3 s, the browser's GPU process at 71 % beside another browser test), what it was waiting for.
+    # Either names the check that failed; which one is a matter of timing, not of the code under test.
     page.evaluate("setTimeout(() => { document.getElementById('late').disabled = false; }, 5000)")
     said = click_button(page, page.locator("#late"), wait=3)
-    assert said is not None and said.startswith("Playwright: element is not enabled;"), said
+    assert said is not None and re.match(
+        r"Playwright: (element is not enabled|waiting for element to be visible, enabled and stable); ", said
+    ), said
     assert page.evaluate("hits.late") == 1
     assert click_button(page, page.locator("#late"), wait=1) is None  # enabled now: Playwright's own click
     assert page.evaluate("hits.late") == 2
