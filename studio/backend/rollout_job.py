@@ -68,10 +68,10 @@ def run_rollout_job(ctx) -> dict:
     from studio.backend.scene_state import pose_frame
     from studio.data.store import EpisodeStore
     from studio.eval.demo_score import worker_score
-    from studio.eval.evaluation import register_checkpoint
+    from studio.eval.evaluation import plan_ticks_of, register_checkpoint
     from studio.eval.latents import attach_latent_images
     from studio.eval.planners import load_planner, process_cached
-    from studio.eval.rollout import protocol_plan_ticks, run_rollout, store_rollout
+    from studio.eval.rollout import run_rollout, store_rollout
     from studio.sim.env import make_env
     from studio.sim.tasks import get_task
 
@@ -86,7 +86,7 @@ def run_rollout_job(ctx) -> dict:
     task = get_task(spec.task)
     robot = spec.robot or ("sawyer" if task.scene == "metaworld" else "panda")
     replans = spec.replans
-    plan_ticks = protocol_plan_ticks(task.scene) if spec.plan_ticks is None else (spec.plan_ticks or None)
+    plan_ticks = plan_ticks_of(spec.plan_ticks, task.scene)  # absent: the scene's protocol; 0: no bound
     store = process_cached(("store", str(ctx.data_dir)), lambda: EpisodeStore(ctx.data_dir))
     # One simulator per job, closed by the job's own thread: an EGL context current in one (still living)
     # thread cannot be made current in another, so a simulator shared across job threads fails to render.

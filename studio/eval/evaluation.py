@@ -674,8 +674,9 @@ def add_plan_ticks_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def plan_ticks_of(given: int | None, scene: str) -> int | None:
-    """``--plan-ticks`` as run: absent, the scene's protocol (:func:`studio.eval.rollout.protocol_plan_ticks`);
-    0, no bound; else as given. ``ValueError`` below 0."""
+    """A bound on each plan as given (``--plan-ticks``, a ``rollout`` job's ``plan_ticks``) as run: absent, the
+    scene's protocol (:func:`studio.eval.rollout.protocol_plan_ticks`); 0, no bound; else as given. ``ValueError``
+    below 0."""
     from studio.eval.rollout import protocol_plan_ticks
 
     if given is None:

@@ -30,6 +30,12 @@ def data_dir(tmp_path_factory):
     return tmp_path_factory.mktemp("studio") / "data"
 
 
+def drawn_plan(studio) -> np.ndarray:
+    """Where the scene draws the plan's five waypoint spheres (5, 3)."""
+    nodes = {h.name: np.asarray(h.position) for h in ui.tab(studio).view._overlays["plan"]}
+    return np.array([nodes[f"/overlay/plan/wp{i}"] for i in range(5)])
+
+
 def test_a_held_out_meta_world_task_runs_under_the_papers_protocol(studio, page, shots):
     im = ui.tab(studio).imitate
     ui.open_tab(page, "Imitate", "Choose a")
@@ -58,8 +64,7 @@ def test_a_held_out_meta_world_task_runs_under_the_papers_protocol(studio, page,
     with np.load(studio.data_dir / im.plan_job.result["path"]) as data:
         predicted = data["waypoints_world"]
     assert ((im.plan_wps[:, :3] >= WORKSPACE[0]) & (im.plan_wps[:, :3] <= WORKSPACE[1])).all(), im.plan_wps
-    nodes = {h.name: np.asarray(h.position) for h in ui.tab(studio).view._overlays["plan"]}
-    spheres = np.array([nodes[f"/overlay/plan/wp{i}"] for i in range(5)])
+    spheres = drawn_plan(studio)
     assert np.allclose(spheres, im.plan_wps[:, :3], atol=1e-5), spheres
     # This guided plan extrapolates: its waypoints lie below the table and past the far edge (tens of centimetres).
     out = np.flatnonzero(np.linalg.norm(predicted[:, :3] - im.plan_wps[:, :3], axis=1) > 0.01)
@@ -110,8 +115,7 @@ def test_a_held_out_meta_world_task_runs_under_the_papers_protocol(studio, page,
     ins.timeline.slider.value = 1
     ui.wait(lambda: "Plan 1 of" in ins.plan_info.content, 30, "the first plan", lambda: ins.plan_info.content)
     assert "outside the workspace" in ins.plan_info.content, ins.plan_info.content
-    nodes = {h.name: np.asarray(h.position) for h in ui.tab(studio).view._overlays["plan"]}
-    drawn = np.array([nodes[f"/overlay/plan/wp{i}"] for i in range(5)])
+    drawn = drawn_plan(studio)
     with np.load(Path(row.path) / "plans.npz") as plans:
         assert np.allclose(drawn, plans["plan0_waypoints_commanded"][:, :3], atol=1e-5)
         assert np.allclose(plans["plan0_waypoints_commanded"], im.plan_wps)  # the plan Imitate drew

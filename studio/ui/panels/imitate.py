@@ -81,29 +81,21 @@ def task_labels() -> dict[str, str]:
     return labels
 
 
-def protocol_replans(task: str) -> int | None:
-    """The re-plans ``task``'s scene's protocol allows it (its split's ``protocol_replans``); None where the
-    protocol says nothing (no protocol, a training task)."""
-    try:
-        return load_split(task.split("/", 1)[0]).protocol_replans(task)
-    except ValueError:
-        return None
-
-
-def protocol_text(task: str) -> str:
-    """The line under *Re-plans* for a held-out task of a scene whose split has an evaluation protocol (Meta-World:
-    the paper's); '' elsewhere, where the field keeps what the person chose."""
+def task_protocol(task: str) -> tuple[int | None, str]:
+    """What ``task``'s scene's evaluation protocol (its split's; Meta-World: the paper's) says of it: the re-plans
+    it allows (``SplitSpec.protocol_replans``; None where the protocol says nothing: no protocol, a training task,
+    and the field keeps what the person chose) and the line under *Re-plans* ('' without a protocol)."""
     try:
         split = load_split(task.split("/", 1)[0])
     except ValueError:
-        return ""
+        return None, ""
     replans = split.protocol_replans(task)
     if replans is None:
         bound = f"Each plan executes at most {split.plan_ticks} control ticks" if split.plan_ticks else ""
-        return f"*{bound}, as `studio results` measures this scene.*" if bound else ""
+        return None, f"*{bound}, as `studio results` measures this scene.*" if bound else ""
     attempts = f"{replans} re-plans" if replans else "one attempt, no re-plans"
     bound = f"; each plan executes at most {split.plan_ticks} control ticks" if split.plan_ticks else ""
-    return f"*How `studio results` measures this task: {attempts}{bound}.*"
+    return replans, f"*How `studio results` measures this task: {attempts}{bound}.*"
 
 
 class ImitatePanel:
@@ -246,8 +238,7 @@ class ImitatePanel:
     def _apply_protocol(self) -> None:
         """A held-out task of a scene whose split has an evaluation protocol (Meta-World: the paper's) gets that
         protocol's re-plans, said under the field; execution bounds each plan as the protocol does."""
-        task = self.task_name
-        text, replans = protocol_text(task), protocol_replans(task)
+        replans, text = task_protocol(self.task_name)
         if replans is not None:
             self.replans.value = replans
         if self._shown.get("protocol") != text:
