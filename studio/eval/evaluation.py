@@ -12,7 +12,8 @@ Every process plans on the same number of torch threads (``planners.PLANNING_THR
 same bit for bit whatever ``--workers`` says.
 
 ``--checkpoint oracle`` plans from the simulator's true state instead of a model: the ceiling of the
-execution stack, reported as such.
+execution stack, reported as such. ``--end-offsets`` also measures where each first plan ends against the scripted
+expert's own plan for the same scene (the oracle's last waypoint), per rollout and per task.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ class PolicyRun:
     extra: dict = field(default_factory=dict)  # added to each stored rollout's ``extra``
     grasp: str = "auto"  # grasp correction (studio.eval.rollout.GRASP_MODES)
     plan_ticks: int | None = None  # control ticks each plan may execute (None: no bound)
+    end_offsets: bool = False  # measure each first plan's end against the scripted expert's (RolloutSummary)
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,18 @@ class RolloutSummary:
     # Per attempt: the breakdown after it and its planning time (``with_budget`` derives smaller budgets).
     attempt_stages: list[dict[str, bool]] = field(default_factory=list)
     attempt_planning_s: list[float] = field(default_factory=list)
+    #: The first plan's last waypoint minus the scripted expert's last waypoint for the same scene (the oracle's
+    #: plan), world frame, metres; None unless asked for (``--end-offsets``).
+    end_offset: tuple[float, float, float] | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready built-ins; ``end_offset`` only when measured."""
+        out = asdict(self)
+        if self.end_offset is None:
+            del out["end_offset"]
+        else:
+            out["end_offset"] = list(self.end_offset)
+        return out
 
 
 def make_jobs(tasks: list[str], episodes: int, seed: int) -> list[EvalJob]:
@@ -174,7 +188,9 @@ def _init_worker(checkpoints: tuple[str, ...], data_dir: str, scene: str, robot:
 
 
 def _close_worker() -> None:
-    env, store = _W.pop("env", None), _W.pop("store", None)
+    env, store, reference = _W.pop("env", None), _W.pop("store", None), _W.pop("reference", None)
+    if reference is not None:
+        reference.close()
     threads = _W.pop("threads_before", None)
     _W.clear()
     if env is not None:
@@ -202,6 +218,7 @@ def _run_job(
     # When each stage was first reached, for viewers that follow the rollout step by step (read only: the
     # simulator tracks its stages every tick anyway).
     stage_ticks: dict[str, int | None] = dict.fromkeys(("reached", "grasped", "placed"))
+    reference_end = _expert_end(env, job) if policy.end_offsets else None
 
     def on_tick() -> None:
         for k, v in env.stages().items():
@@ -254,7 +271,25 @@ def _run_job(
         out.duration_s,
         out.attempt_stages,
         [p.planning_time_s for p in out.plans],
+        end_offset=None if reference_end is None or not out.plans else _offset(out.plans[0], reference_end),
     )
+
+
+def _offset(plan, reference_end: np.ndarray) -> tuple[float, float, float]:
+    """``plan``'s last waypoint minus ``reference_end`` (world frame, m)."""
+    x, y, z = (float(v) for v in np.asarray(plan.waypoints_world, dtype=float)[-1, :3] - reference_end)
+    return x, y, z
+
+
+def _expert_end(env, job: EvalJob) -> np.ndarray:
+    """Where the scripted expert's plan for ``job``'s scene ends (the oracle planner's last waypoint, world
+    frame): the scene is reset for it, and ``run_rollout`` resets it again, so the rollout is the same."""
+    from studio.eval.oracle import OraclePlanner
+
+    if "reference" not in _W:
+        _W["reference"] = OraclePlanner(env)
+    env.reset(job.task, job.env_seed)
+    return np.asarray(_W["reference"].plan(None, None, None, None).waypoints_world, dtype=float)[-1, :3]
 
 
 def _run_chunk(work: list[tuple[int, EvalJob, PolicyRun]], replan: int, keep: bool):
@@ -339,6 +374,20 @@ class TaskBreakdown:
     mean_planning_ms: float
     #: How many rollouts failed at each stage (only the stages some rollout failed at).
     failure_stages: dict[str, int]
+    #: Over the rollouts with an ``end_offset``: its mean and standard deviation per axis (m), and the mean
+    #: distance between the two ends (m); None when none was measured.
+    end_offset_mean: tuple[float, float, float] | None = None
+    end_offset_sd: tuple[float, float, float] | None = None
+    end_distance_mean: float | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready built-ins; the ``end_*`` keys only when measured."""
+        out = asdict(self)
+        for key in ("end_offset_mean", "end_offset_sd", "end_distance_mean"):
+            value = out.pop(key)
+            if value is not None:
+                out[key] = list(value) if isinstance(value, tuple) else value
+        return out
 
 
 @dataclass(frozen=True)
@@ -385,7 +434,7 @@ class EvaluationReport:
         """The report as JSON-ready built-ins; the keys ``plan_ticks``, ``derived_from_replan`` and
         ``replan_cut_tasks`` only when set."""
         out: dict = {
-            "tasks": {task: asdict(breakdown) for task, breakdown in self.tasks.items()},
+            "tasks": {task: breakdown.to_dict() for task, breakdown in self.tasks.items()},
             "success": self.success,
             "rollouts": self.rollouts,
             "mean_planning_ms": self.mean_planning_ms,
@@ -407,7 +456,7 @@ class EvaluationReport:
             out["derived_from_replan"] = self.derived_from_replan
         if self.replan_cut_tasks is not None:
             out["replan_cut_tasks"] = list(self.replan_cut_tasks)
-        out["rows"] = [asdict(r) for r in self.rows]
+        out["rows"] = [r.to_dict() for r in self.rows]
         return out
 
 
@@ -428,6 +477,7 @@ def summarise(rows: Sequence[RolloutSummary]) -> RolloutTotals:
                 s: sum(1 for r in rs if r.failure_stage == s)
                 for s in sorted({r.failure_stage for r in rs if r.failure_stage})
             },
+            **_end_offsets(rs),
         )
     return RolloutTotals(
         tasks=by_task,
@@ -435,6 +485,18 @@ def summarise(rows: Sequence[RolloutSummary]) -> RolloutTotals:
         rollouts=len(rows),
         mean_planning_ms=1000 * float(np.mean([r.planning_time_s for r in rows])) if rows else 0.0,
     )
+
+
+def _end_offsets(rows: Sequence[RolloutSummary]) -> dict:
+    """A task's ``end_*`` fields of :class:`TaskBreakdown` from its rows' end offsets (none measured: empty)."""
+    offsets = np.array([r.end_offset for r in rows if r.end_offset is not None], dtype=float).reshape(-1, 3)
+    if not len(offsets):
+        return {}
+    return {
+        "end_offset_mean": tuple(offsets.mean(axis=0).tolist()),
+        "end_offset_sd": tuple(offsets.std(axis=0).tolist()),
+        "end_distance_mean": float(np.linalg.norm(offsets, axis=1).mean()),
+    }
 
 
 def with_budget(
@@ -540,13 +602,16 @@ def evaluate(
     expert_embodiments: Sequence[str] | None = None,
     grasp: str = "auto",
     plan_ticks: int | None = None,
+    end_offsets: bool = False,
 ) -> EvaluationReport:
     """Run the evaluation and return its report (the rollouts are also written into the catalog).
 
     ``expert_embodiments`` picks whose demonstrations the rollouts imitate (None: Sawyer or human; Meta-World: the
     Sawyer, its only demonstrator). The demonstrations are drawn before the first rollout. ``grasp`` is the grasp
     correction (:data:`studio.eval.rollout.GRASP_MODES`; ``auto``: the scene's own). ``plan_ticks`` bounds each
-    plan's execution in control ticks (None: no bound).
+    plan's execution in control ticks (None: no bound). ``end_offsets`` measures each first plan's end against
+    the scripted expert's for the same scene (``RolloutSummary.end_offset``, the ``end_*`` of each task's
+    breakdown); it costs a scripted plan per rollout and leaves the rollouts as they are.
     """
     from studio.data.paths import resolve_data_dir
     from studio.eval.rollout import grasp_controller
@@ -569,7 +634,9 @@ def evaluate(
     started = time.perf_counter()
     if plan_ticks is not None and plan_ticks < 1:
         raise ValueError(f"plan_ticks must be >= 1, got {plan_ticks}")
-    policy = PolicyRun(checkpoint, checkpoint_id, eval_id, grasp=grasp, plan_ticks=plan_ticks)
+    policy = PolicyRun(
+        checkpoint, checkpoint_id, eval_id, grasp=grasp, plan_ticks=plan_ticks, end_offsets=end_offsets
+    )
     bar = None
     if progress:
         from tqdm import tqdm
@@ -712,6 +779,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-store", action="store_true", help="do not store the rollouts (catalog rows only)"
     )
     parser.add_argument("--json", action="store_true", help="print the full report as JSON")
+    parser.add_argument(
+        "--end-offsets",
+        action="store_true",
+        help="also measure where each first plan ends against the scripted expert's plan for the same scene "
+        "(the oracle's last waypoint): per rollout in the JSON, per task as mean ± sd in cm",
+    )
     add_grasp_correction_argument(parser)
     add_expert_embodiment_argument(parser)
     add_data_dir_argument(parser)
@@ -742,6 +815,7 @@ def run(args: argparse.Namespace) -> int:
         expert_embodiments=experts,
         grasp=args.grasp_correction,
         plan_ticks=plan_ticks,
+        end_offsets=args.end_offsets,
     )
     if args.json:
         print(json.dumps(report.to_dict(), default=float))
@@ -761,4 +835,18 @@ def run(args: argparse.Namespace) -> int:
             f"{t.placed:8.1%} {t.mean_planning_ms:8.1f}"
         )
     print(f"{'all':32s} {report.rollouts:4d} {report.success:8.1%}")
+    measured = {task: t for task, t in report.tasks.items() if t.end_offset_mean is not None}
+    if measured:
+        print("first plan's last waypoint − the scripted expert's, world frame, cm (mean ± sd; distance):")
+        for task, t in measured.items():
+            assert (
+                t.end_offset_mean is not None
+                and t.end_offset_sd is not None
+                and t.end_distance_mean is not None
+            )
+            axes = "  ".join(
+                f"{axis} {100 * m:+6.1f} ± {100 * sd:4.1f}"
+                for axis, m, sd in zip("xyz", t.end_offset_mean, t.end_offset_sd, strict=True)
+            )
+            print(f"{task:32s} {axes}  ({100 * t.end_distance_mean:.1f})")
     return 0

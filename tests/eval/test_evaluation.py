@@ -267,3 +267,98 @@ def test_the_demonstrations_drawn_depend_on_what_was_collected_not_on_episode_id
             by_id = {m.id: (m.collect_seed, m.collect_index) for m in store.episodes()}
             drawn.append([by_id[j.expert_episode_id] for j in jobs])
     assert drawn[0] == drawn[1] and len(set(drawn[0])) > 2
+
+
+def test_end_offsets_measure_each_first_plan_against_the_scripted_experts_and_leave_the_rollouts(
+    tmp_path, capsys
+):
+    """``--end-offsets``: each rollout's first plan's last waypoint minus the oracle's (the scripted expert's plan
+    for the same scene), summed up per task and printed; the rollouts are those of a run without it, the JSON
+    gains the keys only when measured, and the oracle's own plans end where the scripted expert's do."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from studio.data.collect import CollectConfig, collect
+    from studio.data.store import EpisodeStore
+    from studio.eval.evaluation import evaluate
+    from studio.eval.oracle import OraclePlanner
+    from studio.sim.env import make_env
+
+    from .tiny_checkpoint import write_tiny_checkpoint
+
+    task = "pick_place/bar->blue"
+    cfg = CollectConfig(
+        robot="sawyer", tasks=[task], episodes=1, image_size=(60, 80), data_dir=str(tmp_path), progress=False
+    )
+    assert collect(cfg).made == 1
+    ck = str(write_tiny_checkpoint(tmp_path / "tiny" / "best.pt"))
+    plain = evaluate(ck, [task], 2, seed=3, data_dir=tmp_path, progress=False)
+    measured = evaluate(ck, [task], 2, seed=3, data_dir=tmp_path, progress=False, end_offsets=True)
+
+    def outcome(r):
+        return (r.task, r.index, r.seed, r.expert_episode_id, r.success, r.failure_stage, r.attempt_stages)
+
+    assert [outcome(r) for r in measured.rows] == [outcome(r) for r in plain.rows]
+    assert all(r.end_offset is None for r in plain.rows) and plain.tasks[task].end_offset_mean is None
+
+    env = make_env("pick_place", "panda")
+    oracle = OraclePlanner(env)
+    try:
+        with EpisodeStore(tmp_path) as store:
+            for row in measured.rows:
+                env.reset(task, row.seed)
+                expert_end = oracle.plan(None, None, None, None).waypoints_world[-1, :3]
+                (record,) = [
+                    r for r in store.catalog.rollouts(eval_id=measured.eval_id) if r.id == row.rollout_id
+                ]
+                with np.load(Path(record.path) / "plans.npz") as plans:
+                    plan_end = plans["plan0_waypoints_world"][-1, :3]
+                np.testing.assert_allclose(row.end_offset, plan_end - expert_end, atol=1e-9)
+    finally:
+        env.close()
+    offsets = np.array([r.end_offset for r in measured.rows])
+    assert np.linalg.norm(offsets, axis=1).min() > 0.01, (
+        "an untrained model does not end where the expert does"
+    )
+    breakdown = measured.tasks[task]
+    np.testing.assert_allclose(breakdown.end_offset_mean, offsets.mean(axis=0))
+    np.testing.assert_allclose(breakdown.end_offset_sd, offsets.std(axis=0))
+    assert breakdown.end_distance_mean == pytest.approx(np.linalg.norm(offsets, axis=1).mean())
+
+    as_dict, before = measured.to_dict(), plain.to_dict()
+    assert list(as_dict["rows"][0]) == [*before["rows"][0], "end_offset"]
+    assert list(as_dict["tasks"][task]) == [
+        *before["tasks"][task],
+        "end_offset_mean",
+        "end_offset_sd",
+        "end_distance_mean",
+    ]
+    assert as_dict["rows"][1]["end_offset"] == list(measured.rows[1].end_offset)
+
+    own = evaluate("oracle", [task], 1, seed=3, data_dir=tmp_path, progress=False, end_offsets=True)
+    assert own.success == 1.0 and own.rows[0].end_offset == (0.0, 0.0, 0.0)
+
+    assert (
+        run(
+            _args(
+                "--tasks",
+                task,
+                "--episodes",
+                "1",
+                "--seed",
+                "3",
+                "--end-offsets",
+                "--no-store",
+                "--data-dir",
+                str(tmp_path),
+            )
+        )
+        == 0
+    )
+    out = capsys.readouterr().out.splitlines()
+    assert (
+        out[-2]
+        == "first plan's last waypoint − the scripted expert's, world frame, cm (mean ± sd; distance):"
+    )
+    assert out[-1] == f"{task:32s} x   +0.0 ±  0.0  y   +0.0 ±  0.0  z   +0.0 ±  0.0  (0.0)"
