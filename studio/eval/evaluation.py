@@ -826,15 +826,16 @@ def run(args: argparse.Namespace) -> int:
         + (f"plan-ticks={plan_ticks}  " if plan_ticks is not None else "")
         + f"{report.rollouts} rollouts in {report.wall_s:.0f} s"
     )
+    w = max([32, *(len(task) for task in report.tasks)])  # the task column, as wide as the longest name
     print(
-        f"{'task':32s} {'n':>4s} {'success':>8s} {'reached':>8s} {'grasped':>8s} {'placed':>8s} {'plan ms':>8s}"
+        f"{'task':{w}s} {'n':>4s} {'success':>8s} {'reached':>8s} {'grasped':>8s} {'placed':>8s} {'plan ms':>8s}"
     )
     for task, t in report.tasks.items():
         print(
-            f"{task:32s} {t.rollouts:4d} {t.success:8.1%} {t.reached:8.1%} {t.grasped:8.1%} "
+            f"{task:{w}s} {t.rollouts:4d} {t.success:8.1%} {t.reached:8.1%} {t.grasped:8.1%} "
             f"{t.placed:8.1%} {t.mean_planning_ms:8.1f}"
         )
-    print(f"{'all':32s} {report.rollouts:4d} {report.success:8.1%}")
+    print(f"{'all':{w}s} {report.rollouts:4d} {report.success:8.1%}")
     measured = {task: t for task, t in report.tasks.items() if t.end_offset_mean is not None}
     if measured:
         print("first plan's last waypoint − the scripted expert's, world frame, cm (mean ± sd; distance):")
@@ -848,5 +849,5 @@ def run(args: argparse.Namespace) -> int:
                 f"{axis} {100 * m:+6.1f} ± {100 * sd:4.1f}"
                 for axis, m, sd in zip("xyz", t.end_offset_mean, t.end_offset_sd, strict=True)
             )
-            print(f"{task:32s} {axes}  ({100 * t.end_distance_mean:.1f})")
+            print(f"{task:{w}s} {axes}  ({100 * t.end_distance_mean:.1f})")
     return 0

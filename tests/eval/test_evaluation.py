@@ -362,3 +362,49 @@ def test_end_offsets_measure_each_first_plan_against_the_scripted_experts_and_le
         == "first plan's last waypoint − the scripted expert's, world frame, cm (mean ± sd; distance):"
     )
     assert out[-1] == f"{task:32s} x   +0.0 ±  0.0  y   +0.0 ±  0.0  z   +0.0 ±  0.0  (0.0)"
+
+
+def test_the_table_is_as_wide_as_the_longest_task_name(monkeypatch, capsys):
+    """Meta-World's longer names (``button-press-topdown-wall-v3``) keep the columns and the end offsets lined up."""
+    import studio.eval.evaluation as evaluation
+    from studio.eval.evaluation import TaskBreakdown
+
+    long_name, short_name = "metaworld/button-press-topdown-wall-v3", "metaworld/reach-v3"
+    offsets = {"end_offset_mean": (0.027, -0.047, 0.05), "end_offset_sd": (0.041, 0.088, 0.07)}
+    tasks = {
+        name: TaskBreakdown(4, 0.75, 1.0, 1.0, 0.75, 0.0, 190.0, {}, **offsets, end_distance_mean=0.091)
+        for name in (long_name, short_name)
+    }
+
+    def fake_evaluate(checkpoint, task_names, *args, **kwargs):
+        return EvaluationReport(
+            tasks=tasks,
+            success=0.75,
+            rollouts=8,
+            mean_planning_ms=190.0,
+            eval_id="e",
+            checkpoint=checkpoint,
+            robot="sawyer",
+            scene="metaworld",
+            seed=0,
+            replan=0,
+            grasp_correction="auto",
+            expert_embodiments=("sawyer",),
+            episodes_per_task=4,
+            wall_s=1.0,
+            workers=1,
+            rows=(),
+        )
+
+    monkeypatch.setattr(evaluation, "evaluate", fake_evaluate)
+    assert run(_args("--tasks", f"{long_name},{short_name}", "--end-offsets")) == 0
+    lines = capsys.readouterr().out.splitlines()
+    header, long_row, short_row, total = lines[1:5]
+    assert (
+        header.index(" n") + 1
+        == long_row.index(" 4 ") + 1
+        == short_row.index(" 4 ") + 1
+        == total.index(" 8 ") + 1
+    )
+    assert lines[-2].index(" x ") == lines[-1].index(" x ") == len(long_name)
+    assert lines[-2].endswith("x   +2.7 ±  4.1  y   -4.7 ±  8.8  z   +5.0 ±  7.0  (9.1)")
