@@ -281,15 +281,26 @@ def _offset(plan, reference_end: np.ndarray) -> tuple[float, float, float]:
     return x, y, z
 
 
-def _expert_end(env, job: EvalJob) -> np.ndarray:
+def _expert_end(env, job: EvalJob) -> np.ndarray | None:
     """Where the scripted expert's plan for ``job``'s scene ends (the oracle planner's last waypoint, world
-    frame): the scene is reset for it, and ``run_rollout`` resets it again, so the rollout is the same."""
-    from studio.eval.oracle import OraclePlanner
+    frame); None where Meta-World's scripted policy fails in that scene (a few seeds in a hundred), whose path
+    ends nowhere worth measuring against. The scene is reset for it, and ``run_rollout`` resets it again, so the
+    rollout is the same."""
+    env.reset(job.task, job.env_seed)
+    if env.scene != "metaworld":
+        from studio.sim.experts import expert_waypoints
+
+        return np.asarray(expert_waypoints(env), dtype=float)[-1, :3]
+    from studio.sim.metaworld_env import MetaWorldEnv
+    from studio.sim.metaworld_experts import expert_waypoints as metaworld_waypoints
 
     if "reference" not in _W:
-        _W["reference"] = OraclePlanner(env)
-    env.reset(job.task, job.env_seed)
-    return np.asarray(_W["reference"].plan(None, None, None, None).waypoints_world, dtype=float)[-1, :3]
+        _W["reference"] = MetaWorldEnv(image_size=(32, 32))  # the oracle's scratch scene
+    try:
+        waypoints = metaworld_waypoints(env.task.name, job.env_seed, scratch=_W["reference"], strict=True)
+    except RuntimeError:
+        return None
+    return np.asarray(waypoints, dtype=float)[-1, :3]
 
 
 def _run_chunk(work: list[tuple[int, EvalJob, PolicyRun]], replan: int, keep: bool):
@@ -374,16 +385,34 @@ class TaskBreakdown:
     mean_planning_ms: float
     #: How many rollouts failed at each stage (only the stages some rollout failed at).
     failure_stages: dict[str, int]
-    #: Over the rollouts with an ``end_offset``: its mean and standard deviation per axis (m), and the mean
-    #: distance between the two ends (m); None when none was measured.
+    #: Over the rollouts with an ``end_offset`` (``end_measured`` of them): its mean and standard deviation per
+    #: axis (m), and the mean distance between the two ends (m); None when none was measured.
     end_offset_mean: tuple[float, float, float] | None = None
     end_offset_sd: tuple[float, float, float] | None = None
     end_distance_mean: float | None = None
+    end_measured: int | None = None
+
+    def end_offsets_text(self) -> str | None:
+        """The end offsets in cm as ``studio eval`` prints them (None when not measured)."""
+        mean, sd, distance, measured = (
+            self.end_offset_mean,
+            self.end_offset_sd,
+            self.end_distance_mean,
+            self.end_measured,
+        )
+        if mean is None or sd is None or distance is None or measured is None:
+            return None
+        axes = "  ".join(
+            f"{axis} {100 * m:+6.1f} ± {100 * d:4.1f}" for axis, m, d in zip("xyz", mean, sd, strict=True)
+        )
+        missing = self.rollouts - measured
+        unmeasured = f"; {missing} not measured: the scripted expert failed there" if missing else ""
+        return f"{axes}  ({100 * distance:.1f}{unmeasured})"
 
     def to_dict(self) -> dict:
         """JSON-ready built-ins; the ``end_*`` keys only when measured."""
         out = asdict(self)
-        for key in ("end_offset_mean", "end_offset_sd", "end_distance_mean"):
+        for key in ("end_offset_mean", "end_offset_sd", "end_distance_mean", "end_measured"):
             value = out.pop(key)
             if value is not None:
                 out[key] = list(value) if isinstance(value, tuple) else value
@@ -496,6 +525,7 @@ def _end_offsets(rows: Sequence[RolloutSummary]) -> dict:
         "end_offset_mean": tuple(offsets.mean(axis=0).tolist()),
         "end_offset_sd": tuple(offsets.std(axis=0).tolist()),
         "end_distance_mean": float(np.linalg.norm(offsets, axis=1).mean()),
+        "end_measured": len(offsets),
     }
 
 
@@ -836,18 +866,10 @@ def run(args: argparse.Namespace) -> int:
             f"{t.placed:8.1%} {t.mean_planning_ms:8.1f}"
         )
     print(f"{'all':{w}s} {report.rollouts:4d} {report.success:8.1%}")
-    measured = {task: t for task, t in report.tasks.items() if t.end_offset_mean is not None}
-    if measured:
+    ends = {task: t.end_offsets_text() for task, t in report.tasks.items()}
+    if any(ends.values()):
         print("first plan's last waypoint − the scripted expert's, world frame, cm (mean ± sd; distance):")
-        for task, t in measured.items():
-            assert (
-                t.end_offset_mean is not None
-                and t.end_offset_sd is not None
-                and t.end_distance_mean is not None
-            )
-            axes = "  ".join(
-                f"{axis} {100 * m:+6.1f} ± {100 * sd:4.1f}"
-                for axis, m, sd in zip("xyz", t.end_offset_mean, t.end_offset_sd, strict=True)
-            )
-            print(f"{task:{w}s} {axes}  ({100 * t.end_distance_mean:.1f})")
+        for task, text in ends.items():
+            if text:
+                print(f"{task:{w}s} {text}")
     return 0

@@ -333,7 +333,9 @@ def test_end_offsets_measure_each_first_plan_against_the_scripted_experts_and_le
         "end_offset_mean",
         "end_offset_sd",
         "end_distance_mean",
+        "end_measured",
     ]
+    assert breakdown.end_measured == 2
     assert as_dict["rows"][1]["end_offset"] == list(measured.rows[1].end_offset)
 
     own = evaluate("oracle", [task], 1, seed=3, data_dir=tmp_path, progress=False, end_offsets=True)
@@ -372,8 +374,10 @@ def test_the_table_is_as_wide_as_the_longest_task_name(monkeypatch, capsys):
     long_name, short_name = "metaworld/button-press-topdown-wall-v3", "metaworld/reach-v3"
     offsets = {"end_offset_mean": (0.027, -0.047, 0.05), "end_offset_sd": (0.041, 0.088, 0.07)}
     tasks = {
-        name: TaskBreakdown(4, 0.75, 1.0, 1.0, 0.75, 0.0, 190.0, {}, **offsets, end_distance_mean=0.091)
-        for name in (long_name, short_name)
+        name: TaskBreakdown(
+            4, 0.75, 1.0, 1.0, 0.75, 0.0, 190.0, {}, **offsets, end_distance_mean=0.091, end_measured=n
+        )
+        for name, n in ((long_name, 4), (short_name, 3))
     }
 
     def fake_evaluate(checkpoint, task_names, *args, **kwargs):
@@ -408,3 +412,58 @@ def test_the_table_is_as_wide_as_the_longest_task_name(monkeypatch, capsys):
     )
     assert lines[-2].index(" x ") == lines[-1].index(" x ") == len(long_name)
     assert lines[-2].endswith("x   +2.7 ±  4.1  y   -4.7 ±  8.8  z   +5.0 ±  7.0  (9.1)")
+    assert lines[-1].endswith("(9.1; 1 not measured: the scripted expert failed there)")
+
+
+def test_a_scene_whose_scripted_expert_fails_is_left_out_of_the_end_offsets(monkeypatch):
+    """Meta-World's scripted policies fail on a few seeds; there the expert's path ends nowhere worth measuring
+    against, so that rollout has no end offset and its task's summary says how many were measured."""
+    from types import SimpleNamespace
+
+    import studio.sim.metaworld_experts as metaworld_experts
+    from studio.eval import evaluation
+    from studio.eval.evaluation import EvalJob, RolloutSummary, summarise
+
+    calls = []
+
+    def failing(task, seed, scratch=None, strict=False):
+        calls.append((task, seed, strict))
+        raise RuntimeError(f"the scripted policy of {task} failed on seed {seed}")
+
+    class Env:
+        scene = "metaworld"
+        task = SimpleNamespace(name="button-press-v3")
+
+        def reset(self, task, seed):
+            self.reset_to = (task, seed)
+
+    monkeypatch.setattr(metaworld_experts, "expert_waypoints", failing)
+    monkeypatch.setitem(evaluation._W, "reference", object())  # the oracle's scratch scene, not built here
+    env = Env()
+    assert evaluation._expert_end(env, EvalJob("metaworld/button-press-v3", 0, 3, 0)) is None
+    assert calls == [("button-press-v3", 3, True)] and env.reset_to == ("metaworld/button-press-v3", 3)
+
+    def row(index, offset):
+        return RolloutSummary(
+            f"r{index}",
+            "metaworld/button-press-v3",
+            index,
+            index,
+            "e",
+            True,
+            True,
+            True,
+            True,
+            None,
+            0,
+            0.2,
+            1.0,
+            end_offset=offset,
+        )
+
+    (breakdown,) = summarise(
+        [row(0, (0.02, -0.01, 0.1)), row(1, None), row(2, (0.04, 0.01, 0.1))]
+    ).tasks.values()
+    assert breakdown.end_measured == 2 and breakdown.rollouts == 3
+    assert breakdown.end_offset_mean == pytest.approx((0.03, 0.0, 0.1))
+    assert breakdown.end_offsets_text().endswith("; 1 not measured: the scripted expert failed there)")
