@@ -411,25 +411,14 @@ def default_label(checkpoint: str) -> str:
 
 def check_checkpoint(checkpoint: str, scene: str) -> None:
     """Raise :class:`CompareInputError` unless ``checkpoint`` is ``oracle`` or a checkpoint file that may plan in
-    ``scene``: one whose recorded training tasks (when it records them) include tasks of that scene."""
-    if checkpoint == ORACLE:
-        return
-    path = Path(checkpoint)
-    if not path.is_file():
-        raise CompareInputError(f"no checkpoint file {checkpoint!r} (give a .pt file or 'oracle')")
-    from studio.model.checkpoint_info import read_checkpoint_info
+    ``scene`` (:func:`studio.eval.evaluation.check_checkpoint`)."""
+    from studio.eval.evaluation import EvaluationInputError
+    from studio.eval.evaluation import check_checkpoint as check
 
-    try:  # the file's metadata only, read without torch and without running anything in it
-        trained = read_checkpoint_info(path).get("tasks") or []
-    except ValueError as e:
-        raise CompareInputError(f"{checkpoint} is not a checkpoint ({str(e).splitlines()[0]})") from None
-    if not isinstance(trained, (list, tuple)):
-        trained = []
-    scenes = sorted({scene_of_task(t) for t in trained if "/" in str(t)})
-    if scenes and scene not in scenes:
-        raise CompareInputError(
-            f"{checkpoint} was trained on {', '.join(scenes)} tasks, not on scene {scene!r}"
-        )
+    try:
+        check(checkpoint, scene)
+    except EvaluationInputError as e:
+        raise CompareInputError(str(e)) from None
 
 
 def compare(
@@ -462,6 +451,7 @@ def compare(
     from studio.data.paths import resolve_data_dir
     from studio.data.store import EpisodeStore
     from studio.eval.evaluation import (
+        EvaluationInputError,
         PolicyRun,
         default_expert_embodiments,
         default_robot,
@@ -493,7 +483,7 @@ def compare(
     with EpisodeStore(root) as store:
         try:
             jobs = with_demonstrations(store, jobs, experts)  # drawn once: A and B imitate the same ones
-        except RuntimeError as e:
+        except EvaluationInputError as e:
             raise CompareInputError(str(e)) from None
     ids = list(checkpoint_ids or (None, None))
     for k, checkpoint in enumerate((checkpoint_a, checkpoint_b)):

@@ -130,15 +130,45 @@ def demonstration_order(meta) -> tuple:
     )
 
 
+class EvaluationInputError(ValueError):
+    """An evaluation that cannot run as asked, found before any rollout: no checkpoint file, a file that is not a
+    checkpoint or was trained on another scene, no demonstration of a task. The message says what to do."""
+
+
+def check_checkpoint(checkpoint: str, scene: str) -> None:
+    """Raise :class:`EvaluationInputError` unless ``checkpoint`` is ``oracle`` or a checkpoint file that may plan
+    in ``scene``: one whose recorded training tasks (when it records them) include tasks of that scene. Reads the
+    file's metadata only, without torch and without running anything in it."""
+    if checkpoint == "oracle":
+        return
+    path = Path(checkpoint)
+    if not path.is_file():
+        raise EvaluationInputError(f"no checkpoint file {checkpoint!r} (give a .pt file or 'oracle')")
+    from studio.model.checkpoint_info import read_checkpoint_info
+
+    try:
+        trained = read_checkpoint_info(path).get("tasks") or []
+    except ValueError as e:
+        raise EvaluationInputError(f"{checkpoint} is not a checkpoint ({str(e).splitlines()[0]})") from None
+    if not isinstance(trained, (list, tuple)):
+        trained = []
+    scenes = sorted({scene_of_task(t) for t in trained if "/" in str(t)})
+    if scenes and scene not in scenes:
+        raise EvaluationInputError(
+            f"{checkpoint} was trained on {', '.join(scenes)} tasks, not on scene {scene!r}"
+        )
+
+
 def _expert_choices(store, task: str, embodiments: Sequence[str] = DEFAULT_EXPERT_EMBODIMENTS) -> list[str]:
-    """Ids of the stored demonstrations of ``task`` by one of ``embodiments``, in :func:`demonstration_order`."""
+    """Ids of the stored demonstrations of ``task`` by one of ``embodiments``, in :func:`demonstration_order`;
+    :class:`EvaluationInputError` saying how to collect some when there is none."""
     metas = sorted(
         store.episodes(task=task, role="expert", embodiment=list(embodiments)), key=demonstration_order
     )
     ids = [m.id for m in metas]
     if not ids:
         hint = _COLLECT_HINT.get(embodiments[0], "--robot sawyer")
-        raise RuntimeError(
+        raise EvaluationInputError(
             f"no expert demonstration of {task!r} by {' or '.join(embodiments)} in the store; "
             f"collect some with: studio collect {hint} --tasks {task}"
         )
@@ -637,7 +667,8 @@ def evaluate(
     """Run the evaluation and return its report (the rollouts are also written into the catalog).
 
     ``expert_embodiments`` picks whose demonstrations the rollouts imitate (None: Sawyer or human; Meta-World: the
-    Sawyer, its only demonstrator). The demonstrations are drawn before the first rollout. ``grasp`` is the grasp
+    Sawyer, its only demonstrator). The demonstrations are drawn before the first rollout; a checkpoint or store
+    that cannot be evaluated raises :class:`EvaluationInputError` before any rollout runs. ``grasp`` is the grasp
     correction (:data:`studio.eval.rollout.GRASP_MODES`; ``auto``: the scene's own). ``plan_ticks`` bounds each
     plan's execution in control ticks (None: no bound). ``end_offsets`` measures each first plan's end against
     the scripted expert's for the same scene (``RolloutSummary.end_offset``, the ``end_*`` of each task's
@@ -652,6 +683,7 @@ def evaluate(
         raise ValueError(f"evaluate one scene at a time, got tasks from {sorted(scenes)}")
     scene = scenes.pop()
     grasp_controller(scene, grasp)  # a bad mode fails here, before any worker starts
+    check_checkpoint(checkpoint, scene)
     robot = robot or default_robot(scene)
     root = str(resolve_data_dir(data_dir))
     eval_id = f"eval-{uuid.uuid4().hex[:10]}"
@@ -832,21 +864,25 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         print(f"studio eval: {err}", file=sys.stderr)
         return 2
-    report = evaluate(
-        args.checkpoint,
-        tasks,
-        args.episodes,
-        args.seed,
-        args.replan,
-        args.workers,
-        args.data_dir,
-        args.robot,
-        keep=not args.no_store,
-        expert_embodiments=experts,
-        grasp=args.grasp_correction,
-        plan_ticks=plan_ticks,
-        end_offsets=args.end_offsets,
-    )
+    try:
+        report = evaluate(
+            args.checkpoint,
+            tasks,
+            args.episodes,
+            args.seed,
+            args.replan,
+            args.workers,
+            args.data_dir,
+            args.robot,
+            keep=not args.no_store,
+            expert_embodiments=experts,
+            grasp=args.grasp_correction,
+            plan_ticks=plan_ticks,
+            end_offsets=args.end_offsets,
+        )
+    except EvaluationInputError as err:
+        print(f"studio eval: {err}", file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(report.to_dict(), default=float))
         return 0

@@ -30,6 +30,7 @@ from studio.data.paths import add_data_dir_argument
 from studio.data.splits import SplitSpec, load_split, resolve_tasks
 from studio.eval.evaluation import (
     PAPER_PLAN_TICKS,
+    EvaluationInputError,
     EvaluationReport,
     add_expert_embodiment_argument,
     add_grasp_correction_argument,
@@ -181,18 +182,22 @@ def run(args: argparse.Namespace) -> int:
     most = max(args.replan)
     for name, checkpoint in args.policy:
         print(f"== {name}, re-plans {most}", file=sys.stderr, flush=True)
-        report = evaluate(
-            checkpoint,
-            tasks,
-            args.episodes,
-            args.seed,
-            most,
-            args.workers,
-            args.data_dir,
-            expert_embodiments=experts,
-            grasp=args.grasp_correction,
-            plan_ticks=plan_ticks,
-        )
+        try:
+            report = evaluate(
+                checkpoint,
+                tasks,
+                args.episodes,
+                args.seed,
+                most,
+                args.workers,
+                args.data_dir,
+                expert_embodiments=experts,
+                grasp=args.grasp_correction,
+                plan_ticks=plan_ticks,
+            )
+        except EvaluationInputError as err:
+            print(f"studio results: {name}: {err}", file=sys.stderr)
+            return 2
         reports += budget_rows(name, report, args.replan, split)
     table = render_markdown(reports, split.test_groups)
     machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPU cores, {platform.platform()}"

@@ -42,7 +42,7 @@ def test_expert_embodiments_choose_the_demonstrations(tmp_path):
     from data_fixtures import make_recording
 
     from studio.data.store import EpisodeStore
-    from studio.eval.evaluation import _expert_choices, expert_embodiments_of
+    from studio.eval.evaluation import EvaluationInputError, _expert_choices, expert_embodiments_of
 
     assert expert_embodiments_of(_args("--expert-embodiment", "human")) == ["human"]
     assert expert_embodiments_of(
@@ -65,7 +65,7 @@ def test_expert_embodiments_choose_the_demonstrations(tmp_path):
         assert _expert_choices(store, task) == [ids["hand"], ids["sawyer"]]
         assert _expert_choices(store, task, ("human",)) == [ids["hand"]]
         assert _expert_choices(store, task, ("panda",)) == [ids["panda"]]
-        with pytest.raises(RuntimeError, match="studio collect --robot hand"):
+        with pytest.raises(EvaluationInputError, match="studio collect --robot hand"):
             _expert_choices(store, "pick_place/bar->blue", ("human",))
 
 
@@ -467,3 +467,39 @@ def test_a_scene_whose_scripted_expert_fails_is_left_out_of_the_end_offsets(monk
     assert breakdown.end_measured == 2 and breakdown.rollouts == 3
     assert breakdown.end_offset_mean == pytest.approx((0.03, 0.0, 0.1))
     assert breakdown.end_offsets_text().endswith("; 1 not measured: the scripted expert failed there)")
+
+
+def test_studio_eval_says_what_is_wrong_with_its_input_before_any_rollout(tmp_path, capsys):
+    """No checkpoint file, a file that is not a checkpoint, a policy of another scene, no demonstration of the
+    task: one line saying so (and what to do), exit status 2, no traceback and no rollout stored."""
+    from studio.data.paths import SHIPPED_POLICY_DIR
+    from studio.data.store import EpisodeStore
+
+    not_a_checkpoint = tmp_path / "notes.pt"
+    not_a_checkpoint.write_text("hello")
+    shipped_metaworld = str(SHIPPED_POLICY_DIR / "metaworld-cpu.pt")
+    task = "pick_place/bar->blue"
+    cases = [
+        (
+            str(tmp_path / "missing.pt"),
+            f"no checkpoint file '{tmp_path / 'missing.pt'}' (give a .pt file or 'oracle')",
+        ),
+        (str(not_a_checkpoint), f"{not_a_checkpoint} is not a checkpoint ("),
+        (shipped_metaworld, f"{shipped_metaworld} was trained on metaworld tasks, not on scene 'pick_place'"),
+        (
+            "oracle",
+            f"no expert demonstration of '{task}' by sawyer or human in the store; collect some with: "
+            f"studio collect --robot sawyer --tasks {task}",
+        ),
+    ]
+    for checkpoint, said in cases:
+        parser = argparse.ArgumentParser()
+        add_arguments(parser)
+        args = parser.parse_args(
+            ["--checkpoint", checkpoint, "--tasks", task, "--data-dir", str(tmp_path / "d")]
+        )
+        assert run(args) == 2, checkpoint
+        err = capsys.readouterr().err
+        assert err.startswith(f"studio eval: {said}") and len(err.splitlines()) == 1, err
+    with EpisodeStore(tmp_path / "d") as store:
+        assert store.catalog.rollouts() == []

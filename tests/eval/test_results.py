@@ -174,3 +174,37 @@ def test_results_bound_each_plan_as_the_paper_on_meta_world(scene, given, bound,
     out = capsys.readouterr().out
     assert seen["plan_ticks"] == bound
     assert (f"each plan executes at most {bound} control ticks" in out) == (bound is not None)
+
+
+def test_results_say_which_policy_cannot_be_evaluated_and_why(tmp_path, capsys):
+    """A policy file that is not there, or a store without the held-out tasks' demonstrations: one line naming the
+    policy and what to do, exit status 2, no table written."""
+    import studio.eval.results as results
+
+    out = tmp_path / "table.md"
+    for policy, said in [
+        (
+            f"gone={tmp_path / 'gone.pt'}",
+            f"studio results: gone: no checkpoint file '{tmp_path / 'gone.pt'}'",
+        ),
+        ("ceiling=oracle", "studio results: ceiling: no expert demonstration of 'pick_place/"),
+    ]:
+        parser = argparse.ArgumentParser()
+        results.add_arguments(parser)
+        args = parser.parse_args(
+            [
+                "--policy",
+                policy,
+                "--scene",
+                "pick_place",
+                "--data-dir",
+                str(tmp_path / "d"),
+                "--out",
+                str(out),
+            ]
+        )
+        assert results.run(args) == 2
+        last = capsys.readouterr().err.splitlines()[-1]
+        assert last.startswith(said), last
+    assert "collect some with: studio collect --robot sawyer" in last
+    assert not out.exists()

@@ -191,7 +191,9 @@ def test_evaluation_is_deterministic_and_stores_rollouts(tmp_path):
 
 
 def test_missing_demonstrations_give_a_clear_error(tmp_path):
-    with pytest.raises(RuntimeError, match="no expert demonstration"):
+    from studio.eval.evaluation import EvaluationInputError
+
+    with pytest.raises(EvaluationInputError, match="no expert demonstration"):
         evaluate("oracle", ["pick_place/bar->yellow"], 1, seed=0, data_dir=tmp_path, progress=False)
 
 
@@ -207,7 +209,9 @@ def test_evaluating_a_checkpoint_file_registers_it_for_the_rollouts(tmp_path):
         assert [r.checkpoint_id for r in rows] == ["run-a/best", "run-a/best"]
         (record,) = store.catalog.checkpoints("run-a")
         assert record.path == str(ck.resolve()) and record.step == 7
-    with pytest.raises(FileNotFoundError, match="no checkpoint file"):
+    from studio.eval.evaluation import EvaluationInputError
+
+    with pytest.raises(EvaluationInputError, match="no checkpoint file"):
         evaluate(
             str(tmp_path / "missing.pt"), ["pick_place/bar->blue"], 1, seed=0, data_dir=root, progress=False
         )
