@@ -316,21 +316,16 @@ def _expert_end(env, job: EvalJob) -> np.ndarray | None:
     frame); None where Meta-World's scripted policy fails in that scene (a few seeds in a hundred), whose path
     ends nowhere worth measuring against. The scene is reset for it, and ``run_rollout`` resets it again, so the
     rollout is the same."""
-    env.reset(job.task, job.env_seed)
-    if env.scene != "metaworld":
-        from studio.sim.experts import expert_waypoints
-
-        return np.asarray(expert_waypoints(env), dtype=float)[-1, :3]
-    from studio.sim.metaworld_env import MetaWorldEnv
-    from studio.sim.metaworld_experts import expert_waypoints as metaworld_waypoints
+    from studio.eval.oracle import OraclePlanner
 
     if "reference" not in _W:
-        _W["reference"] = MetaWorldEnv(image_size=(32, 32))  # the oracle's scratch scene
+        _W["reference"] = OraclePlanner(env, strict=True)
+    env.reset(job.task, job.env_seed)
     try:
-        waypoints = metaworld_waypoints(env.task.name, job.env_seed, scratch=_W["reference"], strict=True)
+        plan = _W["reference"].plan(None, None, None, None)
     except RuntimeError:
         return None
-    return np.asarray(waypoints, dtype=float)[-1, :3]
+    return np.asarray(plan.waypoints_world, dtype=float)[-1, :3]
 
 
 def _run_chunk(work: list[tuple[int, EvalJob, PolicyRun]], replan: int, keep: bool):
@@ -687,12 +682,12 @@ def evaluate(
     robot = robot or default_robot(scene)
     root = str(resolve_data_dir(data_dir))
     eval_id = f"eval-{uuid.uuid4().hex[:10]}"
-    checkpoint_id = None if checkpoint == "oracle" else register_checkpoint(root, checkpoint)
     experts = tuple(expert_embodiments or default_expert_embodiments(scene))
     from studio.data.store import EpisodeStore
 
     with EpisodeStore(root) as store:
         jobs = with_demonstrations(store, make_jobs(tasks, episodes, seed), experts)
+    checkpoint_id = None if checkpoint == "oracle" else register_checkpoint(root, checkpoint)
     started = time.perf_counter()
     if plan_ticks is not None and plan_ticks < 1:
         raise ValueError(f"plan_ticks must be >= 1, got {plan_ticks}")

@@ -25,15 +25,17 @@ class OraclePlanner:
     It ignores the images; evaluation reports it as an upper bound for what the controller can do
     with perfect waypoints, never as a result of the model. On the tabletop the waypoints are our experts'
     for the current state; on Meta-World they are five points along the scripted policy's own episode from the
-    same reset (``studio.sim.metaworld_experts.expert_waypoints``), so a re-plan repeats the first plan.
+    same reset (``studio.sim.metaworld_experts.expert_waypoints``), so a re-plan repeats the first plan. Where
+    Meta-World's scripted policy fails, its plan follows the failed attempt, or with ``strict`` raises RuntimeError.
     """
 
-    def __init__(self, env: SimEnv):
+    def __init__(self, env: SimEnv, strict: bool = False):
         if env.scene not in ("pick_place", "push", "metaworld"):
             raise ValueError(
                 f"the oracle planner knows the tabletop and Meta-World scenes, not {env.scene!r}"
             )
         self.env = env
+        self.strict = strict
         self._scratch: MetaWorldEnv | None = None
 
     def _waypoints(self) -> np.ndarray:
@@ -47,7 +49,7 @@ class OraclePlanner:
             raise RuntimeError("the oracle plans for a scene that has been reset (SimEnv.reset)")
         if self._scratch is None:
             self._scratch = MetaWorldEnv(image_size=(32, 32))
-        return metaworld_waypoints(task.name, seed, scratch=self._scratch)
+        return metaworld_waypoints(task.name, seed, scratch=self._scratch, strict=self.strict)
 
     def plan(self, expert_frames, agent_frame, K, T_world_cam):
         wps = self._waypoints()

@@ -10,6 +10,29 @@ import pytest
 from studio.eval.evaluation import EvaluationReport, add_arguments, run
 
 
+def _report(checkpoint: str, **changes) -> EvaluationReport:
+    """A Meta-World report with no rollouts, for tests of what ``studio eval`` prints; ``changes`` override fields."""
+    empty = EvaluationReport(
+        tasks={},
+        success=0.0,
+        rollouts=0,
+        mean_planning_ms=0.0,
+        eval_id="e",
+        checkpoint=checkpoint,
+        robot="sawyer",
+        scene="metaworld",
+        seed=0,
+        replan=0,
+        grasp_correction="auto",
+        expert_embodiments=("sawyer",),
+        episodes_per_task=1,
+        wall_s=0.0,
+        workers=1,
+        rows=(),
+    )
+    return dataclasses.replace(empty, **changes)
+
+
 def _args(*argv: str) -> argparse.Namespace:
     parser = argparse.ArgumentParser()
     add_arguments(parser)
@@ -213,25 +236,7 @@ def test_studio_eval_bounds_each_plan_as_the_scenes_protocol_unless_told(argv, b
 
     def fake_evaluate(checkpoint, tasks, *args, plan_ticks=None, **kwargs):
         seen["plan_ticks"] = plan_ticks
-        return EvaluationReport(
-            tasks={},
-            success=0.0,
-            rollouts=0,
-            mean_planning_ms=0.0,
-            eval_id="e",
-            checkpoint=checkpoint,
-            robot="sawyer",
-            scene="metaworld",
-            seed=0,
-            replan=0,
-            grasp_correction="auto",
-            expert_embodiments=("sawyer",),
-            episodes_per_task=1,
-            wall_s=0.0,
-            workers=1,
-            rows=(),
-            plan_ticks=plan_ticks,
-        )
+        return _report(checkpoint, plan_ticks=plan_ticks)
 
     monkeypatch.setattr(evaluation, "evaluate", fake_evaluate)
     parser = argparse.ArgumentParser()
@@ -381,23 +386,14 @@ def test_the_table_is_as_wide_as_the_longest_task_name(monkeypatch, capsys):
     }
 
     def fake_evaluate(checkpoint, task_names, *args, **kwargs):
-        return EvaluationReport(
+        return _report(
+            checkpoint,
             tasks=tasks,
             success=0.75,
             rollouts=8,
             mean_planning_ms=190.0,
-            eval_id="e",
-            checkpoint=checkpoint,
-            robot="sawyer",
-            scene="metaworld",
-            seed=0,
-            replan=0,
-            grasp_correction="auto",
-            expert_embodiments=("sawyer",),
             episodes_per_task=4,
             wall_s=1.0,
-            workers=1,
-            rows=(),
         )
 
     monkeypatch.setattr(evaluation, "evaluate", fake_evaluate)
@@ -423,6 +419,7 @@ def test_a_scene_whose_scripted_expert_fails_is_left_out_of_the_end_offsets(monk
     import studio.sim.metaworld_experts as metaworld_experts
     from studio.eval import evaluation
     from studio.eval.evaluation import EvalJob, RolloutSummary, summarise
+    from studio.eval.oracle import OraclePlanner
 
     calls = []
 
@@ -435,11 +432,13 @@ def test_a_scene_whose_scripted_expert_fails_is_left_out_of_the_end_offsets(monk
         task = SimpleNamespace(name="button-press-v3")
 
         def reset(self, task, seed):
-            self.reset_to = (task, seed)
+            self.reset_to, self.seed = (task, seed), seed
 
     monkeypatch.setattr(metaworld_experts, "expert_waypoints", failing)
-    monkeypatch.setitem(evaluation._W, "reference", object())  # the oracle's scratch scene, not built here
     env = Env()
+    reference = OraclePlanner(env, strict=True)
+    monkeypatch.setattr(reference, "_scratch", object())  # the oracle's scratch scene, not built here
+    monkeypatch.setitem(evaluation._W, "reference", reference)
     assert evaluation._expert_end(env, EvalJob("metaworld/button-press-v3", 0, 3, 0)) is None
     assert calls == [("button-press-v3", 3, True)] and env.reset_to == ("metaworld/button-press-v3", 3)
 
