@@ -128,7 +128,7 @@ _METAWORLD_GUIDE = {
 
 # The end stage's augmentation: the paper's random crop and translation, up to 5 % of the image (the reference
 # code's 12 of 224 pixels), and a zoom of 0.95-1.05 (not in the paper); the labels stay in the camera frame
-# (``augment``). No colour jitter, and no flips: mirrored pairs cost pick-place-wall (docs/experiments.md).
+# (``augment``). No flips (they cost pick-place-wall) and no colour jitter (it cost every task; docs/experiments.md).
 _METAWORLD_END_AUGMENTATION = {"crop": 0.05, "translate": 0.05, "scale": (0.95, 1.05)}
 
 RECIPES: dict[str, Recipe] = {
